@@ -1,0 +1,3 @@
+from line_odom.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,30 @@
+// 7L solver (paper §4): seven line intersections, solved from a pose guess by alternating projection
+// (intersection projection, then per-frame rigidity projection), or by Gauss-Newton on SE(3) over the
+// seven signed line distances.
+#pragma once
+
+#include <array>
+
+#include "types.hpp"
+
+namespace line_odom {
+
+enum class Solve7LMethod { kAlternatingProjection, kGaussNewton };
+
+struct Solve7LOptions {
+  Solve7LMethod method = Solve7LMethod::kGaussNewton;
+  int max_iterations = 30000;  // the paper's alternating projection needs up to 30K
+  double tolerance = 1e-12;    // stop when the update falls under this
+};
+
+struct Solve7LStats {
+  int iterations = 0;
+  double residual = 0.0;  // max |signed line distance| at the solution
+};
+
+// Returns 1 and writes T_ab to `solution` when converged to a pose meeting all seven constraints, else 0.
+int solve_7l(const std::array<Segment, 7>& segments_a, const std::array<Segment, 7>& segments_b,
+             const RigidTransform& init, RigidTransform* solution, const Solve7LOptions& options = {},
+             Solve7LStats* stats = nullptr);
+
+}  // namespace line_odom

@@ -1,0 +1,63 @@
+"""Builds line_odom (ament_python) and its C++17 engine line_odom_core._core (pybind11 + Eigen)."""
+import glob
+import os
+
+from pybind11.setup_helpers import ParallelCompile, Pybind11Extension, build_ext, naive_recompile
+from setuptools import find_packages, setup
+
+PACKAGE = "line_odom"
+VERSION = "0.1.0"
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+ParallelCompile("LINE_ODOM_BUILD_JOBS", default=2, needs_recompile=naive_recompile).install()
+
+
+def eigen_include_dir():
+    candidates = [os.environ.get("EIGEN3_INCLUDE_DIR", ""), "/usr/include/eigen3", "/usr/local/include/eigen3",
+                  os.path.join(os.environ.get("CONDA_PREFIX", "/nonexistent"), "include", "eigen3")]
+    for path in candidates:
+        if path and os.path.isfile(os.path.join(path, "Eigen", "Core")):
+            return path
+    raise RuntimeError("Eigen3 headers not found: install libeigen3-dev (apt) or set EIGEN3_INCLUDE_DIR "
+                       "to the directory that contains Eigen/Core")
+
+
+sources = sorted(glob.glob("line_odom_core/cpp/**/*.cpp", recursive=True))
+compile_flags = ["-O3", "-DNDEBUG", "-fvisibility=hidden"]
+core = Pybind11Extension(
+    "line_odom_core._core",
+    sources,
+    include_dirs=[eigen_include_dir(), "line_odom_core/cpp"],
+    cxx_std=17,
+    extra_compile_args=compile_flags,
+    define_macros=[("LINE_ODOM_VERSION", f'"{VERSION}"'),
+                   ("LINE_ODOM_COMPILE_FLAGS", '"' + " ".join(compile_flags) + '"')],
+)
+
+setup(
+    name=PACKAGE,
+    version=VERSION,
+    packages=find_packages(include=["line_odom", "line_odom.*", "line_odom_core", "line_odom_core.*"]),
+    package_data={"line_odom_core": ["py.typed", "*.pyi"], "line_odom": ["py.typed"]},
+    ext_modules=[core],
+    cmdclass={"build_ext": build_ext},
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/config", sorted(glob.glob("config/*"))),
+        ("share/" + PACKAGE + "/launch", sorted(glob.glob("launch/*.py"))),
+    ],
+    install_requires=["setuptools", "numpy", "scipy", "pyyaml"],
+    zip_safe=False,
+    maintainer="line_odom maintainers",
+    maintainer_email="maintainers@line-odom.dev",
+    description="Sparse-scan LiDAR and depth odometry from line-intersection constraints",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "node = line_odom.node:main",
+            "line_odom = line_odom.cli:main",
+        ],
+    },
+)
