@@ -12,6 +12,19 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ParallelCompile("LINE_ODOM_BUILD_JOBS", default=2, needs_recompile=naive_recompile).install()
 
 
+class AtomicInplaceBuildExt(build_ext):
+    """--inplace copies the extension over the old one; write a temporary file and rename it instead, so a
+    process that has the old module loaded keeps a valid mapping."""
+
+    def copy_file(self, infile, outfile, *args, **kwargs):
+        if not self.inplace or not outfile.endswith((".so", ".pyd")):
+            return super().copy_file(infile, outfile, *args, **kwargs)
+        tmp = outfile + ".tmp"
+        result = super().copy_file(infile, tmp, *args, **kwargs)
+        os.replace(tmp, outfile)
+        return result
+
+
 def eigen_include_dir():
     candidates = [os.environ.get("EIGEN3_INCLUDE_DIR", ""), "/usr/include/eigen3", "/usr/local/include/eigen3",
                   os.path.join(os.environ.get("CONDA_PREFIX", "/nonexistent"), "include", "eigen3")]
@@ -40,7 +53,7 @@ setup(
     packages=find_packages(include=["line_odom", "line_odom.*", "line_odom_core", "line_odom_core.*"]),
     package_data={"line_odom_core": ["py.typed", "*.pyi"], "line_odom": ["py.typed"]},
     ext_modules=[core],
-    cmdclass={"build_ext": build_ext},
+    cmdclass={"build_ext": AtomicInplaceBuildExt},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
