@@ -6,12 +6,14 @@ Ground truth is returned in the sensor's own frame: KITTI poses are given for ca
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+# ../shared/data beside the checkout (tests, benchmarks, CI); LINE_ODOM_DATA points elsewhere.
+SHARED_DATA = Path(os.environ.get("LINE_ODOM_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
 
 # Intrinsics of the TUM RGB-D cameras (fx, fy, cx, cy), from the dataset documentation.
 TUM_INTRINSICS = {
