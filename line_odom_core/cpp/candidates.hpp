@@ -1,0 +1,38 @@
+// Candidate line intersections and plane correspondences between two scans under a motion guess
+// (paper §6.3): H-lines of one frame against V-lines of the other whose segments come within a distance
+// threshold once the current scan is moved by the guess; plane pairs with close normals and centroids near
+// the other plane. Weights are the inverse size of the pair's normal cluster.
+#pragma once
+
+#include <vector>
+
+#include "motion_estimation.hpp"
+#include "scan_features.hpp"
+#include "types.hpp"
+
+namespace line_odom {
+
+struct CandidateOptions {
+  double max_distance = 2.0;           // segment-to-segment distance under the guess (2 m KITTI)
+  double min_line_angle_deg = 10.0;    // skip near-parallel pairs: their intersection constrains little
+  double max_normal_angle_deg = 30.0;  // both surface normals known: they must agree within this
+  double plane_max_angle_deg = 20.0;   // plane pairs: normals within this
+  double plane_max_distance = 2.0;     // plane pairs: centroid-to-other-plane distance
+  int max_pairs_per_line = 0;          // keep only the closest k partners of each line (0 = all)
+};
+
+struct CandidateStats {
+  int line_pairs = 0;
+  int plane_pairs = 0;
+  std::array<int, 4> cluster_pairs{};  // pairs per normal cluster 0..2 and unknown (index 3)
+};
+
+// Closest distance between two 3D segments.
+double segment_distance(const Segment& s1, const Segment& s2);
+
+// Frame a = previous scan, b = current scan; T_ab_guess maps b into a. Fills `out` (line pairs with
+// segments, weights and clusters; plane pairs) in a deterministic order.
+void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
+                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr);
+
+}  // namespace line_odom
