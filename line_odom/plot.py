@@ -1,0 +1,83 @@
+"""trajectory.png: top view of the estimate against ground truth, and the frame-to-frame error over time.
+
+Uses matplotlib's Agg backend (no display needed). The estimate is drawn start-aligned (its first pose put on
+the ground truth's), so drift shows as it accumulates.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from line_odom import metrics
+from line_odom.evaluation import Trajectory, associate
+
+AXIS_NAMES = "xyz"
+
+
+def _top_view_axes(positions: np.ndarray) -> tuple[int, int]:
+    """The two axes with the largest spread (the view looks along the axis that varies least)."""
+    if len(positions) < 2:
+        return 0, 1
+    spread = positions.max(axis=0) - positions.min(axis=0)
+    a, b = sorted(np.argsort(spread)[1:])
+    return int(a), int(b)
+
+
+def plot_trajectory(path: str | Path, estimate: Trajectory, ground_truth: Trajectory | None = None,
+                    title: str = "line_odom") -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    est, gt = estimate, None
+    if ground_truth is not None and len(ground_truth):
+        est, gt = associate(estimate, ground_truth)
+    fig, (ax_top, ax_err) = plt.subplots(1, 2, figsize=(12, 5.2))
+    fig.suptitle(title)
+    if gt is not None and len(est):
+        start = gt.poses[0] @ np.linalg.inv(est.poses[0])
+        est_xyz = (start @ est.poses)[:, :3, 3]
+        gt_xyz = gt.poses[:, :3, 3]
+        a, b = _top_view_axes(gt_xyz)
+        ax_top.plot(gt_xyz[:, a], gt_xyz[:, b], "k--", lw=1.5, label="ground truth")
+        ax_top.plot(est_xyz[:, a], est_xyz[:, b], "C0-", lw=1.5, label="estimate (start-aligned)")
+        ax_top.plot(gt_xyz[:1, a], gt_xyz[:1, b], "ko", ms=5, label="start")
+    else:
+        est_xyz = est.poses[:, :3, 3]
+        a, b = _top_view_axes(est_xyz)
+        ax_top.plot(est_xyz[:, a], est_xyz[:, b], "C0-", lw=1.5, label="estimate")
+        if len(est_xyz):
+            ax_top.plot(est_xyz[:1, a], est_xyz[:1, b], "ko", ms=5, label="start")
+    ax_top.set_xlabel(f"{AXIS_NAMES[a]} [m]")
+    ax_top.set_ylabel(f"{AXIS_NAMES[b]} [m]")
+    ax_top.set_title("top view")
+    ax_top.set_aspect("equal", adjustable="datalim")
+    ax_top.grid(True, alpha=0.3)
+    ax_top.legend(loc="best", fontsize=8)
+
+    if gt is not None and len(est) >= 2:
+        t_err, r_err = metrics.relative_pose_errors(est.poses, gt.poses)
+        if est.stamps is not None:
+            x = est.stamps[1:] - est.stamps[0]
+            ax_err.set_xlabel("time [s]")
+        else:
+            x = np.arange(1, len(est))
+            ax_err.set_xlabel("frame")
+        ax_err.plot(x, t_err * 100.0, "C0-", lw=1.2, label="RPE translation [cm]")
+        ax_err.set_ylabel("RPE translation [cm]", color="C0")
+        ax_rot = ax_err.twinx()
+        ax_rot.plot(x, r_err, "C3-", lw=1.0, alpha=0.8, label="RPE rotation [deg]")
+        ax_rot.set_ylabel("RPE rotation [deg]", color="C3")
+        ax_err.set_title("frame-to-frame error")
+        ax_err.grid(True, alpha=0.3)
+    else:
+        ax_err.axis("off")
+        ax_err.text(0.5, 0.5, "no ground truth", ha="center", va="center", fontsize=14, color="0.4")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
