@@ -1,0 +1,296 @@
+"""Engine configuration: one flat set of dotted settings ("ransac.max_iterations", "lines.min_points", ...),
+the same names as the ROS parameters of the node, read from ROS 2 parameter files
+(``line_odom: ros__parameters: {section: {key: value}}``) and checked against a schema with types and ranges.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any, Iterable, Mapping, NamedTuple
+
+PRESETS = ("kitti_hdl64", "tum_kinect", "vlp16", "ouster_os128")
+NODE_NAME = "line_odom"
+
+
+class ConfigEntry(NamedTuple):
+    """One engine setting: dotted name, Python type (bool, int, float or str), default, description, and the
+    inclusive range [min, max] (None = unbounded; for str settings the allowed values are in CHOICES)."""
+
+    name: str
+    type: type
+    default: Any
+    description: str
+    min: float | None
+    max: float | None
+
+
+_INF = None
+_ENTRIES: list[ConfigEntry] = [
+    ConfigEntry("downsample", int, 1, "keep every n-th row and column of the range image (1 = full resolution, "
+                "6 = 1/36, 8 = 1/64, 10 = 1/100)", 1, 64),
+    ConfigEntry("seed", int, 0, "random seed of every sampling step (runs are deterministic for a seed)", 0, 2**62),
+    # --- organizing the input (paper §6.2) ---
+    ConfigEntry("sensor.model", str, "hdl64", "how unorganized clouds map onto rows (beams) and columns (azimuth):"
+                " hdl64 (= kitti), vlp16, os128, or uniform (sensor.rows beams evenly spaced between the "
+                "elevation limits); organized clouds and depth images ignore it", None, None),
+    ConfigEntry("sensor.rows", int, 0, "beams of a uniform sensor model (0 = the preset's)", 0, 1024),
+    ConfigEntry("sensor.cols", int, 0, "azimuth bins of the range image (0 = the preset's)", 0, 65536),
+    ConfigEntry("sensor.max_elevation_deg", float, 2.0, "uniform model: elevation of the top beam (deg)",
+                -90.0, 90.0),
+    ConfigEntry("sensor.min_elevation_deg", float, -24.9, "uniform model: elevation of the bottom beam (deg)",
+                -90.0, 90.0),
+    ConfigEntry("sensor.min_range", float, 0.0, "closer points are holes (m; depth cameras: depth z)", 0.0, 1e6),
+    ConfigEntry("sensor.max_range", float, 1e9, "farther points are holes (m)", 0.0, 1e9),
+    # --- registration (paper §6.3) ---
+    ConfigEntry("candidates.max_distance", float, 2.0, "line pairs whose segments come within this distance (m) "
+                "under the motion guess are candidate intersections (paper: 2 m on KITTI)", 1e-3, 100.0),
+    ConfigEntry("candidates.min_line_angle_deg", float, 10.0, "skip candidate pairs of lines closer to parallel "
+                "than this (deg)", 0.0, 89.0),
+    ConfigEntry("candidates.max_normal_angle_deg", float, 30.0, "when both lines have a surface normal, the "
+                "normals must agree within this angle (deg); 90 disables", 0.0, 90.0),
+    ConfigEntry("candidates.plane_max_angle_deg", float, 20.0, "candidate plane pairs: normals within this "
+                "angle (deg) under the guess (paper: 20)", 0.0, 90.0),
+    ConfigEntry("candidates.plane_max_distance", float, 2.0, "candidate plane pairs: centroid-to-other-plane "
+                "distance (m) under the guess", 1e-3, 100.0),
+    ConfigEntry("candidates.max_pairs_per_line", int, 0, "keep only the k closest partners of each line "
+                "(0 = all)", 0, 100000),
+    ConfigEntry("ransac.solver", str, "auto", "minimal solver: auto (hybrid over 7L, 3L1P, 1L2P), 7L, 3L1P "
+                "or 1L2P", None, None),
+    ConfigEntry("ransac.max_iterations", int, 1000, "RANSAC hypotheses per pass", 1, 1000000),
+    ConfigEntry("ransac.min_iterations", int, 50, "RANSAC hypotheses per pass at least", 0, 1000000),
+    ConfigEntry("ransac.confidence", float, 0.999, "stop when the best model is found with this probability",
+                0.5, 0.999999),
+    ConfigEntry("ransac.inlier_threshold", float, 0.02, "a candidate pair is an inlier when its lines pass "
+                "within this distance (m) (paper: 2 cm KITTI, 5 mm TUM)", 1e-5, 10.0),
+    ConfigEntry("ransac.plane_angle_threshold_deg", float, 3.0, "plane pair inlier: normal angle (deg)",
+                0.0, 90.0),
+    ConfigEntry("ransac.plane_distance_threshold", float, 0.05, "plane pair inlier: offset difference (m)",
+                0.0, 10.0),
+    ConfigEntry("ransac.refine_iterations", int, 10, "least-squares iterations on all inliers", 0, 1000),
+    ConfigEntry("ransac.huber_delta", float, 0.0, "robust loss width of the refinement (m); 0 = inlier "
+                "threshold", 0.0, 10.0),
+    ConfigEntry("registration.passes", int, 3, "candidate + RANSAC passes per frame, each seeded with the best "
+                "estimate so far (paper §6.3: 3)", 1, 10),
+    ConfigEntry("registration.pass_distance_scale", float, 1.0, "candidate distance multiplier from one pass to "
+                "the next (1 = the same threshold every pass)", 0.01, 1.0),
+    ConfigEntry("registration.min_inliers", int, 12, "fewer inlier pairs than this: registration failed, the "
+                "motion model's prediction is held", 0, 1000000),
+    ConfigEntry("registration.max_translation", float, 5.0, "an estimate further than this (m) from the "
+                "prediction is rejected", 1e-3, 1000.0),
+    ConfigEntry("registration.max_rotation_deg", float, 30.0, "an estimate rotated more than this (deg) from the "
+                "prediction is rejected", 0.01, 180.0),
+    ConfigEntry("registration.constant_velocity", bool, True, "predict each motion from the previous one "
+                "(scaled by the stamp interval); false = identity", None, None),
+    ConfigEntry("registration.fallback_translation_sigma", float, 0.5, "1-sigma translation uncertainty (m) "
+                "reported when the prediction is held", 0.0, 1000.0),
+    ConfigEntry("registration.fallback_rotation_sigma_deg", float, 5.0, "1-sigma rotation uncertainty (deg) "
+                "reported when the prediction is held", 0.0, 180.0),
+]
+
+CHOICES: dict[str, tuple[str, ...]] = {"ransac.solver": ("auto", "7L", "3L1P", "1L2P"),
+                                       "sensor.model": ("hdl64", "kitti", "vlp16", "os128", "uniform")}
+
+
+def _register(entries: Iterable[ConfigEntry]) -> None:
+    _ENTRIES.extend(entries)
+
+
+def config_schema() -> list[ConfigEntry]:
+    """Every engine setting (name, type, default, description, min, max), in a stable order."""
+    return list(_ENTRIES)
+
+
+def _schema_map() -> dict[str, ConfigEntry]:
+    return {e.name: e for e in _ENTRIES}
+
+
+def _range_text(entry: ConfigEntry) -> str:
+    if entry.name in CHOICES:
+        return "one of " + ", ".join(CHOICES[entry.name])
+    lo = "-inf" if entry.min is None else repr(entry.min)
+    hi = "inf" if entry.max is None else repr(entry.max)
+    return f"{entry.type.__name__} in [{lo}, {hi}]"
+
+
+def validate_value(name: str, value: Any) -> Any:
+    """The value converted to the setting's type; ValueError naming the key and the expected range."""
+    schema = _schema_map()
+    if name not in schema:
+        raise ValueError(f"unknown engine setting {name!r}; known: {', '.join(sorted(schema))}")
+    entry = schema[name]
+    bad = ValueError(f"{name}: expected {_range_text(entry)}, got {value!r}")
+    if entry.type is bool:
+        if isinstance(value, bool):
+            return value
+        raise bad
+    if entry.type is str:
+        if not isinstance(value, str):
+            raise bad
+        choices = CHOICES.get(name)
+        if choices is not None:
+            match = [c for c in choices if c.lower() == value.lower()]
+            if not match:
+                raise bad
+            value = match[0]
+        return value
+    if isinstance(value, (bool, str, bytes)):
+        raise bad
+    if entry.type is int:
+        try:
+            as_float = float(value)
+        except (TypeError, ValueError):
+            raise bad from None
+        if not math.isfinite(as_float) or as_float != int(as_float):
+            raise bad
+        value = int(as_float)
+    else:
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            raise bad from None
+        if not math.isfinite(value):
+            raise bad
+    if (entry.min is not None and value < entry.min) or (entry.max is not None and value > entry.max):
+        raise bad
+    return value
+
+
+class Config:
+    """Engine settings by dotted name (``config["ransac.max_iterations"]``), plus ``extra``: the keys of the
+    parameter file the engine does not know (the node's own parameters: frames, topics, qos, ...)."""
+
+    def __init__(self, values: Mapping[str, Any] | None = None, extra: Mapping[str, Any] | None = None,
+                 source: str | None = None):
+        self._values = {e.name: e.default for e in _ENTRIES}
+        for name, value in (values or {}).items():
+            self._values[name] = validate_value(name, value)
+        self.extra: dict[str, Any] = dict(extra or {})
+        self.source = source
+        self._check_consistency()
+
+    def _check_consistency(self) -> None:
+        if self._values["sensor.min_range"] >= self._values["sensor.max_range"]:
+            raise ValueError(f"sensor.min_range: expected < sensor.max_range ({self._values['sensor.max_range']}), "
+                             f"got {self._values['sensor.min_range']}")
+        if self._values["sensor.model"] == "uniform" and (
+                self._values["sensor.rows"] < 2
+                or self._values["sensor.max_elevation_deg"] <= self._values["sensor.min_elevation_deg"]):
+            raise ValueError("sensor.rows: a uniform sensor model needs sensor.rows >= 2 and "
+                             "sensor.max_elevation_deg > sensor.min_elevation_deg")
+        if self._values["ransac.min_iterations"] > self._values["ransac.max_iterations"]:
+            raise ValueError(f"ransac.min_iterations: expected <= ransac.max_iterations "
+                             f"({self._values['ransac.max_iterations']}), got {self._values['ransac.min_iterations']}")
+
+    def __getitem__(self, name: str) -> Any:
+        if name not in self._values:
+            raise KeyError(name)
+        return self._values[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._values
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self._values.get(name, default)
+
+    def as_dict(self) -> dict[str, Any]:
+        """All engine settings, dotted name -> value."""
+        return dict(self._values)
+
+    def with_overrides(self, overrides: Mapping[str, Any] | None) -> "Config":
+        """A copy with some settings replaced; unknown names or out-of-range values raise ValueError."""
+        values = dict(self._values)
+        for name, value in (overrides or {}).items():
+            values[name] = validate_value(name, value)
+        return Config(values, self.extra, self.source)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Config) and self._values == other._values and self.extra == other.extra
+
+    def __repr__(self) -> str:
+        changed = {k: v for k, v in self._values.items() if v != _schema_map()[k].default}
+        return f"Config(source={self.source!r}, changed={changed!r}, extra_keys={sorted(self.extra)!r})"
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested sections -> dotted names ({"ransac": {"max_iterations": 5}} -> {"ransac.max_iterations": 5})."""
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def config_search_dirs() -> list[Path]:
+    """Where presets are looked for: the source tree, <sys.prefix>/share/line_odom/config, then every
+    AMENT_PREFIX_PATH entry's share/line_odom/config."""
+    dirs = [Path(__file__).resolve().parents[1] / "config", Path(sys.prefix) / "share" / "line_odom" / "config"]
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            dirs.append(Path(prefix) / "share" / "line_odom" / "config")
+    return dirs
+
+
+def preset_path(name: str) -> Path:
+    """The YAML file of a preset (e.g. "kitti_hdl64"); FileNotFoundError listing where it was looked for."""
+    if name not in PRESETS:
+        raise ValueError(f"preset_or_path: expected one of {', '.join(PRESETS)} or a YAML file path, got {name!r}")
+    searched = config_search_dirs()
+    for directory in searched:
+        candidate = directory / f"{name}.yaml"
+        if candidate.is_file():
+            return candidate
+    raise FileNotFoundError(f"preset {name!r}: {name}.yaml not found in " + ", ".join(str(d) for d in searched))
+
+
+def read_parameter_file(path: str | Path, node: str = NODE_NAME) -> dict[str, Any]:
+    """The flattened ros__parameters of `node` (or of the wildcard "/**") in a ROS 2 parameter file."""
+    import yaml
+
+    path = Path(path)
+    with open(path, encoding="utf-8") as f:
+        doc = yaml.safe_load(f)
+    if not isinstance(doc, Mapping):
+        raise ValueError(f"{path}: expected a ROS 2 parameter file (mapping '{node}: ros__parameters: ...')")
+    params: dict[str, Any] = {}
+    found = False
+    for key in ("/**", node, "/" + node):
+        section = doc.get(key)
+        if isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping):
+            params.update(flatten(section["ros__parameters"]))
+            found = True
+    if not found:
+        raise ValueError(f"{path}: no '{node}: ros__parameters:' (or '/**: ros__parameters:') section; "
+                         f"top-level keys are {sorted(map(str, doc))}")
+    return params
+
+
+def load_config(preset_or_path: str | os.PathLike = "kitti_hdl64",
+                overrides: Mapping[str, Any] | None = None) -> Config:
+    """Engine settings from a preset name ("kitti_hdl64", "tum_kinect", "vlp16", "ouster_os128") or a ROS 2
+    parameter YAML file, with `overrides` (dotted names as the ROS parameters) applied on top.
+
+    Keys of the file the engine does not know are kept in ``config.extra``; unknown keys in `overrides` and
+    out-of-range values raise ValueError naming the key and the expected range."""
+    text = os.fspath(preset_or_path)
+    looks_like_path = text.endswith((".yaml", ".yml")) or os.sep in text or Path(text).is_file()
+    path = Path(text) if looks_like_path else preset_path(text)
+    if not path.is_file():
+        raise FileNotFoundError(f"preset_or_path: {path} does not exist")
+    params = read_parameter_file(path)
+    schema = _schema_map()
+    known = {k: v for k, v in params.items() if k in schema}
+    extra = {k: v for k, v in params.items() if k not in schema}
+    try:
+        config = Config(known, extra, str(path))
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
+    if overrides is not None:
+        if not isinstance(overrides, Mapping):
+            raise ValueError(f"overrides: expected a dict of dotted names, got {type(overrides).__name__}")
+        config = config.with_overrides(overrides)
+    return config

@@ -1,0 +1,151 @@
+"""Python face of the odometry pipeline: numpy in, a FrameResult out, state kept across frames.
+
+    odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 6}))
+    result = odom.register_points(xyz, stamp)          # result.pose is T_world_sensor (4x4)
+
+Every heavy call runs in C++ with the GIL released.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from typing import Any
+
+import numpy as np
+
+from line_odom_core import _core
+from line_odom_core.config import Config, load_config
+
+
+@dataclasses.dataclass
+class FrameResult:
+    """One registered frame.
+
+    pose: T_world_sensor (4x4); delta: T_prev_curr (4x4), the motion since the previous frame;
+    covariance: 6x6 of delta, order (x y z rx ry rz), perturbation on the left; twist: (vx vy vz wx wy wz)
+    of delta over the stamp interval, in the sensor frame (zeros on the first frame);
+    stats: see ``_core.pyi`` (solver, candidates, inliers, h_lines, v_lines, planes, ms, degenerate, ...)."""
+
+    stamp: float
+    pose: np.ndarray
+    delta: np.ndarray
+    covariance: np.ndarray
+    twist: np.ndarray
+    stats: dict[str, Any]
+
+    @property
+    def degenerate(self) -> bool:
+        return bool(self.stats["degenerate"])
+
+
+def _stamp(stamp: Any) -> float:
+    try:
+        value = float(stamp)
+    except (TypeError, ValueError):
+        raise ValueError(f"stamp: expected a finite number of seconds, got {stamp!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"stamp: expected a finite number of seconds, got {stamp!r}")
+    return value
+
+
+def _float_array(name: str, value: Any, ndim: int, last: int | None, what: str) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "fiu" or arr.ndim != ndim or (last is not None and arr.shape[-1] != last):
+        raise ValueError(f"{name}: expected {what}, got array of shape {arr.shape} and dtype {arr.dtype}")
+    if arr.dtype not in (np.float32, np.float64):
+        arr = arr.astype(np.float64)
+    return np.ascontiguousarray(arr)
+
+
+def _pose(name: str, value: Any) -> np.ndarray:
+    T = np.asarray(value, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"{name}: expected a finite 4x4 homogeneous transform, got shape {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0 or not np.allclose(
+            T[3], [0, 0, 0, 1]):
+        raise ValueError(f"{name}: expected a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+    return T
+
+
+class Odometry:
+    """Frame-to-frame line-intersection odometry (paper §6.3) with a constant-velocity motion model.
+
+    config: a Config (from load_config), a preset name or YAML path, or None for the kitti_hdl64 preset."""
+
+    def __init__(self, config: Config | str | os.PathLike | None = None):
+        if config is None:
+            config = load_config("kitti_hdl64")
+        elif isinstance(config, (str, os.PathLike)):
+            config = load_config(config)
+        elif not isinstance(config, Config):
+            raise ValueError(f"config: expected a line_odom_core.Config, preset name or YAML path, got "
+                             f"{type(config).__name__}")
+        self.config = config
+        self._engine = _core.Odometry(config.as_dict())
+        self._last_stamp: float | None = None
+
+    # ---- registration ----
+    def register_points(self, xyz: np.ndarray, stamp: float, *, ring: np.ndarray | None = None) -> FrameResult:
+        """Unorganized points (N, 3) in metres (NaN/inf = dropped); `ring` (N,) integer beam index per point, or
+        None to organize by elevation with the configured sensor model."""
+        pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
+        ring_arr = None
+        if ring is not None:
+            ring_arr = np.asarray(ring)
+            if ring_arr.dtype.kind not in "iu" or ring_arr.shape != (pts.shape[0],):
+                raise ValueError(f"ring: expected an integer array of shape ({pts.shape[0]},), got shape "
+                                 f"{ring_arr.shape} and dtype {ring_arr.dtype}")
+            ring_arr = np.ascontiguousarray(ring_arr, dtype=np.int32)
+        return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr))
+
+    def register_organized(self, xyz: np.ndarray, stamp: float) -> FrameResult:
+        """Organized points (H, W, 3): rows = rings or pixel rows; NaN/inf/zero points are holes."""
+        pts = _float_array("xyz", xyz, 3, 3, "an (H, W, 3) organized point array")
+        return self._wrap(self._engine.register_organized(pts, _stamp(stamp)))
+
+    def register_depth(self, depth: np.ndarray, K: np.ndarray, stamp: float) -> FrameResult:
+        """Depth image (H, W) in metres (0/NaN = no measurement) and pinhole intrinsics K (3, 3)."""
+        d = _float_array("depth", depth, 2, None, "an (H, W) depth image in metres")
+        K_arr = np.asarray(K, dtype=float)
+        if K_arr.shape != (3, 3) or not np.all(np.isfinite(K_arr)) or K_arr[0, 0] <= 0 or K_arr[1, 1] <= 0:
+            raise ValueError(f"K: expected finite 3x3 intrinsics with fx, fy > 0, got {K_arr.tolist()}")
+        return self._wrap(self._engine.register_depth(np.ascontiguousarray(d, dtype=np.float32), K_arr,
+                                                      _stamp(stamp)))
+
+    def reset(self, pose: np.ndarray | None = None) -> None:
+        """Forget the previous scan and the velocity; the next frame gets `pose` (default identity)."""
+        T = np.eye(4) if pose is None else _pose("pose", pose)
+        self._engine.reset(T)
+        self._last_stamp = None
+
+    # ---- helpers ----
+    def downsampled_points(self, xyz: np.ndarray, *, ring: np.ndarray | None = None) -> np.ndarray:
+        """The valid points the pipeline keeps from an unorganized cloud after organizing and downsampling (M, 3)
+        (e.g. to feed another method exactly the same sparse scan)."""
+        pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
+        ring_arr = None if ring is None else np.ascontiguousarray(ring, dtype=np.int32)
+        return self._engine.downsampled_points(pts, ring_arr)
+
+    @property
+    def pose(self) -> np.ndarray:
+        return self._engine.pose()
+
+    @property
+    def frames(self) -> int:
+        return self._engine.frames()
+
+    def _wrap(self, raw: Any) -> FrameResult:
+        stamp = raw.stamp
+        delta = raw.delta
+        twist = np.zeros(6)
+        if self._last_stamp is not None and stamp > self._last_stamp:
+            dt = stamp - self._last_stamp
+            from scipy.spatial.transform import Rotation
+
+            twist[:3] = delta[:3, 3] / dt
+            twist[3:] = Rotation.from_matrix(delta[:3, :3]).as_rotvec() / dt
+        self._last_stamp = stamp
+        return FrameResult(stamp, raw.pose, delta, raw.covariance, twist, raw.stats)
+
