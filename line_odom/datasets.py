@@ -33,9 +33,10 @@ def _pose_from_row(values) -> np.ndarray:
 
 def read_kitti_bin(path: str | Path) -> np.ndarray:
     """One velodyne scan as (N, 4) float32: x, y, z, reflectance."""
+    size = os.path.getsize(path)
+    if size % 16:
+        raise ValueError(f"{path}: size {size} bytes is not a multiple of 16 (x, y, z, reflectance float32)")
     raw = np.fromfile(path, dtype=np.float32)
-    if raw.size % 4:
-        raise ValueError(f"{path}: size {raw.size * 4} bytes is not a multiple of 16 (x, y, z, reflectance float32)")
     return raw.reshape(-1, 4)
 
 
