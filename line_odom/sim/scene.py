@@ -1,0 +1,278 @@
+"""The static world of the simulator and ray casting into it.
+
+A :class:`Scene` holds three kinds of primitives in the world frame (z up, metres):
+
+- infinite planes ``n·x + delta = 0``;
+- boxes with a centre, half extents and a yaw about the world z axis (a box that contains the sensor is seen
+  from the inside, so one box makes a room: floor, ceiling and four walls);
+- vertical cylinders (axis parallel to world z) with a bottom and a top cap.
+
+Ray casting is analytic and vectorised over rays: for every box and cylinder the rays that can hit it are
+bounded by an angular window (a contiguous block of the sensor's ray grid, see ``RayGrid.windows``), primitives
+are visited near to far, and a primitive whose window is already covered by nearer hits is skipped. Primitives
+farther than the sensor's maximum range are culled by their bounding sphere before anything else.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+# Corner sign pattern of a box (8, 3) and its 12 edges as index pairs into the corners.
+_CORNER_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+_BOX_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+                       if np.count_nonzero(_CORNER_SIGNS[i] != _CORNER_SIGNS[j]) == 1])
+
+
+def yaw_matrix(yaw: float | np.ndarray) -> np.ndarray:
+    """Rotation(s) about z: (3, 3) for a scalar yaw, (N, 3, 3) for an array."""
+    yaw = np.asarray(yaw, dtype=float)
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros(yaw.shape + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+class SceneBuilder:
+    """Collects primitives; :meth:`build` freezes them into a :class:`Scene`. Each primitive has a ``kind`` tag
+    ("ground", "building", "car", "pole", ...) that ends up in ``Scene.kinds`` (indexed by primitive id)."""
+
+    def __init__(self) -> None:
+        self._planes: list[tuple[np.ndarray, float, str]] = []
+        self._boxes: list[tuple[np.ndarray, np.ndarray, float, str]] = []
+        self._cylinders: list[tuple[float, float, float, float, float, str]] = []
+
+    def add_plane(self, normal, delta: float, kind: str = "plane") -> "SceneBuilder":
+        n = np.asarray(normal, dtype=float).reshape(3)
+        norm = np.linalg.norm(n)
+        if not norm > 0:
+            raise ValueError(f"add_plane: normal must be a non-zero 3-vector, got {normal!r}")
+        self._planes.append((n / norm, float(delta) / norm, kind))
+        return self
+
+    def add_box(self, center, size, yaw: float = 0.0, kind: str = "box") -> "SceneBuilder":
+        """``size`` is the full extent (length along the yawed x, width along y, height along z)."""
+        c = np.asarray(center, dtype=float).reshape(3)
+        s = np.asarray(size, dtype=float).reshape(3)
+        if not np.all(s > 0):
+            raise ValueError(f"add_box: size must be three positive extents, got {size!r}")
+        self._boxes.append((c, s / 2.0, float(yaw), kind))
+        return self
+
+    def add_cylinder(self, x: float, y: float, z0: float, z1: float, radius: float,
+                     kind: str = "cylinder") -> "SceneBuilder":
+        if not (radius > 0 and z1 > z0):
+            raise ValueError(f"add_cylinder: need radius > 0 and z1 > z0, got radius={radius}, z0={z0}, z1={z1}")
+        self._cylinders.append((float(x), float(y), float(z0), float(z1), float(radius), kind))
+        return self
+
+    def build(self, name: str = "", **meta) -> "Scene":
+        P, B, C = len(self._planes), len(self._boxes), len(self._cylinders)
+        plane_n = np.array([p[0] for p in self._planes]).reshape(P, 3)
+        plane_d = np.array([p[1] for p in self._planes]).reshape(P)
+        box_c = np.array([b[0] for b in self._boxes]).reshape(B, 3)
+        box_h = np.array([b[1] for b in self._boxes]).reshape(B, 3)
+        box_yaw = np.array([b[2] for b in self._boxes]).reshape(B)
+        cyl = np.array([c[:5] for c in self._cylinders]).reshape(C, 5)
+        kinds = tuple([p[2] for p in self._planes] + [b[3] for b in self._boxes] + [c[5] for c in self._cylinders])
+        return Scene(plane_n=plane_n, plane_d=plane_d, box_center=box_c, box_half=box_h, box_yaw=box_yaw,
+                     cyl_xy=cyl[:, 0:2].copy(), cyl_z=cyl[:, 2:4].copy(), cyl_radius=cyl[:, 4].copy(),
+                     kinds=kinds, name=name, meta=dict(meta))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Scene:
+    """Primitives as arrays. Primitive ids (used by label images): planes first, then boxes, then cylinders."""
+
+    plane_n: np.ndarray      # (P, 3) unit normals
+    plane_d: np.ndarray      # (P,)   offsets: n·x + d = 0
+    box_center: np.ndarray   # (B, 3)
+    box_half: np.ndarray     # (B, 3) half extents along the box's own axes
+    box_yaw: np.ndarray      # (B,)   rotation about world z
+    cyl_xy: np.ndarray       # (C, 2) axis position
+    cyl_z: np.ndarray        # (C, 2) bottom and top
+    cyl_radius: np.ndarray   # (C,)
+    kinds: tuple = ()
+    name: str = ""
+    meta: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # Bounding oriented boxes of all finite primitives (boxes, then cylinders) for culling and ray windows.
+        box_R = yaw_matrix(self.box_yaw)
+        cyl_c = np.column_stack([self.cyl_xy, self.cyl_z.mean(axis=1)]) if len(self.cyl_radius) else np.zeros((0, 3))
+        cyl_h = np.column_stack([self.cyl_radius, self.cyl_radius, (self.cyl_z[:, 1] - self.cyl_z[:, 0]) / 2])
+        object.__setattr__(self, "box_R", box_R)
+        object.__setattr__(self, "bound_center", np.concatenate([self.box_center, cyl_c]).reshape(-1, 3))
+        object.__setattr__(self, "bound_half", np.concatenate([self.box_half, cyl_h.reshape(-1, 3)]).reshape(-1, 3))
+        object.__setattr__(self, "bound_R", np.concatenate([box_R, np.broadcast_to(np.eye(3), (len(cyl_c), 3, 3))])
+                           .reshape(-1, 3, 3))
+        object.__setattr__(self, "bound_radius", np.linalg.norm(self.bound_half, axis=1))
+
+    @property
+    def num_planes(self) -> int:
+        return len(self.plane_d)
+
+    @property
+    def num_boxes(self) -> int:
+        return len(self.box_yaw)
+
+    @property
+    def num_cylinders(self) -> int:
+        return len(self.cyl_radius)
+
+    def __len__(self) -> int:
+        return self.num_planes + self.num_boxes + self.num_cylinders
+
+    def distance(self, points) -> np.ndarray:
+        """Unsigned distance (N,) from world points (N, 3) to the nearest primitive surface (inf if none)."""
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        best = np.full(len(p), np.inf)
+        for n, d in zip(self.plane_n, self.plane_d):
+            best = np.minimum(best, np.abs(p @ n + d))
+        for c, h, R in zip(self.box_center, self.box_half, self.box_R):
+            q = np.abs((p - c) @ R) - h
+            outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+            inside = np.minimum(q.max(axis=1), 0.0)
+            best = np.minimum(best, np.abs(outside + inside))
+        for xy, z, r in zip(self.cyl_xy, self.cyl_z, self.cyl_radius):
+            q = np.column_stack([np.linalg.norm(p[:, :2] - xy, axis=1) - r, np.abs(p[:, 2] - z.mean()) - (z[1] - z[0]) / 2])
+            outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+            inside = np.minimum(q.max(axis=1), 0.0)
+            best = np.minimum(best, np.abs(outside + inside))
+        return best
+
+
+class RayGrid:
+    """Rays from the sensor origin on an (H, W) grid, directions in the sensor frame as three (H, W) arrays.
+
+    Subclasses say which block(s) of the grid can see a convex set (``windows``). ``t`` along a ray is the range
+    for unit directions (LiDAR) or the depth for directions with z = 1 (pinhole camera).
+    """
+
+    def __init__(self, directions: np.ndarray, dtype=np.float32) -> None:
+        d = np.asarray(directions, dtype=dtype)
+        self.shape = d.shape[:2]
+        self.dtype = np.dtype(dtype)
+        self.dx, self.dy, self.dz = (np.ascontiguousarray(d[..., k]) for k in range(3))
+        self.dd = self.dx * self.dx + self.dy * self.dy + self.dz * self.dz
+
+    def windows(self, corners: np.ndarray, center: np.ndarray, radius: np.ndarray,
+                dmin: np.ndarray, dmax: np.ndarray) -> list[list[tuple[int, int, int, int]]]:
+        """Per convex object (K): a list of (row0, row1, col0, col1) blocks holding every ray that can hit it.
+        ``corners`` (K, 8, 3) of its bounding box, bounding sphere ``center`` (K, 3) / ``radius`` (K,), and the
+        nearest/farthest distance of the box from the origin ``dmin``/``dmax`` (K,), all in the sensor frame."""
+        raise NotImplementedError
+
+
+def cast(scene: Scene, T_world_sensor: np.ndarray, grid: RayGrid, max_range: float,
+         occlusion_culling: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest hit along every ray: ``t`` (H, W) (inf = no hit within ``max_range``) and the primitive id
+    (H, W) int32 (-1 = none). ``max_range`` bounds ``t`` (range for LiDAR, depth for a camera)."""
+    T = np.asarray(T_world_sensor, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"T_world_sensor must be a finite 4x4 pose, got shape {T.shape}")
+    R_ws, t_ws = T[:3, :3], T[:3, 3]
+    dt = grid.dtype.type
+    H, W = grid.shape
+    best = np.full((H, W), np.inf, dtype=grid.dtype)
+    label = np.full((H, W), -1, dtype=np.int32)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for i, (n, d) in enumerate(zip(scene.plane_n, scene.plane_d)):
+            n_s = R_ws.T @ n
+            d_s = float(n @ t_ws + d)
+            nd = grid.dx * dt(n_s[0]) + grid.dy * dt(n_s[1]) + grid.dz * dt(n_s[2])
+            t = dt(-d_s) / nd
+            hit = (t > 0) & (t < best)
+            best[hit] = t[hit]
+            label[hit] = i
+        if len(scene.bound_radius):
+            _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_culling)
+    far = ~(best <= max_range)
+    best[far] = np.inf
+    label[far] = -1
+    return best, label
+
+
+def _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_culling) -> None:
+    dt = grid.dtype.type
+    c_rel = scene.bound_center - t_ws
+    near = np.linalg.norm(c_rel, axis=1) - scene.bound_radius <= max_range
+    ids = np.flatnonzero(near)
+    if ids.size == 0:
+        return
+    R_sb = np.einsum("ji,kjl->kil", R_ws, scene.bound_R[ids])          # R_ws^T R_b
+    c_s = c_rel[ids] @ R_ws                                               # R_ws^T (c - t)
+    half = scene.bound_half[ids]
+    corners = c_s[:, None, :] + np.einsum("kij,knj->kni", R_sb, _CORNER_SIGNS[None] * half[:, None, :])
+    origin_local = -np.einsum("kji,kj->ki", R_sb, c_s)                   # R_sb^T (0 - c_s)
+    q = np.abs(origin_local) - half
+    dmin = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+    dmax = np.linalg.norm(corners, axis=2).max(axis=1)
+    keep = dmin <= max_range
+    order = np.flatnonzero(keep)[np.argsort(dmin[keep], kind="stable")]
+    if order.size == 0:
+        return
+    windows = grid.windows(corners[order], c_s[order], scene.bound_radius[ids[order]], dmin[order], dmax[order])
+    nb, npl = scene.num_boxes, scene.num_planes
+    for j, k in enumerate(order):
+        pid = ids[k]
+        for r0, r1, c0, c1 in windows[j]:
+            view = best[r0:r1, c0:c1]
+            if view.size == 0:
+                continue
+            if occlusion_culling and dmin[k] > 0 and np.all(view <= dmin[k]):
+                continue
+            dx, dy, dz = grid.dx[r0:r1, c0:c1], grid.dy[r0:r1, c0:c1], grid.dz[r0:r1, c0:c1]
+            if pid < nb:
+                t = _intersect_box(dx, dy, dz, R_sb[k], origin_local[k], half[k], dt)
+            else:
+                ci = pid - nb
+                base = R_ws.T @ (np.array([*scene.cyl_xy[ci], scene.cyl_z[ci, 0]]) - t_ws)
+                t = _intersect_cylinder(dx, dy, dz, grid.dd[r0:r1, c0:c1], R_ws[2], base,
+                                        scene.cyl_z[ci, 1] - scene.cyl_z[ci, 0], scene.cyl_radius[ci], dt)
+            hit = t < view
+            if hit.any():
+                view[hit] = t[hit]
+                label[r0:r1, c0:c1][hit] = npl + pid
+
+
+def _intersect_box(dx, dy, dz, R_sb, o, h, dt):
+    """Slab test in the box frame; from outside the entry, from inside the exit (the box seen from within)."""
+    tnear = None
+    for k in range(3):
+        dk = dx * dt(R_sb[0, k]) + dy * dt(R_sb[1, k]) + dz * dt(R_sb[2, k])
+        inv = dt(1.0) / dk
+        ta = dt(-h[k] - o[k]) * inv
+        tb = dt(h[k] - o[k]) * inv
+        lo, hi = np.fmin(ta, tb), np.fmax(ta, tb)
+        if tnear is None:
+            tnear, tfar = lo, hi
+        else:
+            np.fmax(tnear, lo, out=tnear)
+            np.fmin(tfar, hi, out=tfar)
+    t = np.where(tnear > 0, tnear, tfar)
+    t[~((tnear <= tfar) & (tfar > 0))] = np.inf
+    return t
+
+
+def _intersect_cylinder(dx, dy, dz, dd, axis, base, height, radius, dt):
+    """Nearest positive hit of a capped cylinder with unit ``axis`` and bottom centre ``base`` (sensor frame)."""
+    w = -base                                   # origin relative to the bottom centre
+    wa = float(w @ axis)
+    ww = float(w @ w)
+    da = dx * dt(axis[0]) + dy * dt(axis[1]) + dz * dt(axis[2])
+    wd = dx * dt(w[0]) + dy * dt(w[1]) + dz * dt(w[2])
+    A = dd - da * da
+    B = dt(2.0) * (wd - dt(wa) * da)
+    C = ww - wa * wa - radius * radius
+    disc = B * B - dt(4.0 * C) * A
+    root = np.sqrt(np.maximum(disc, 0))
+    t_side = (-B - root) / (dt(2.0) * A) if C > 0 else (-B + root) / (dt(2.0) * A)
+    axial = dt(wa) + t_side * da
+    t = np.where((disc >= 0) & (t_side > 0) & (axial >= 0) & (axial <= height), t_side, np.inf).astype(dx.dtype)
+    for cap in (0.0, height):
+        tc = dt(cap - wa) / da
+        rad2 = dt(ww) + dt(2.0) * tc * wd + tc * tc * dd - (dt(wa) + tc * da) ** 2
+        ok = (tc > 0) & (rad2 <= radius * radius) & (tc < t)
+        t[ok] = tc[ok]
+    return t
