@@ -1,0 +1,238 @@
+// 7L (paper §4). Two methods from the same pose guess:
+// - alternating projection: (1) intersection projection, each pair's four endpoints move by half the gap between
+//   the closest points of the two lines; (2) rigidity projection, per frame the rigid transform (Kabsch) that best
+//   maps the original endpoints onto the moved ones. Repeat until no endpoint moves more than the tolerance.
+// - Gauss-Newton (Levenberg-Marquardt damped) on SE(3) over the seven signed line distances, T <- exp(xi) T.
+// Both end with the same acceptance test: residual and rank of the 7x6 Jacobian at the solution.
+#include "solvers/solve_7l.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+
+#include "solvers/solver_input.hpp"
+
+namespace line_odom {
+namespace {
+
+using Mat76 = Eigen::Matrix<double, 7, 6>;
+using Vec7 = Eigen::Matrix<double, 7, 1>;
+
+constexpr double kMinSegmentLength = 1e-9;
+constexpr double kMinLineSine = 1e-6;         // |d_a x d_b'| floor of the signed distance's denominator
+constexpr double kMinSingularRatio = 1e-7;    // sigma_min / sigma_max of the Jacobian: below it, degenerate
+constexpr double kMaxDamping = 1e10;
+
+struct LinePairs {
+  std::array<PluckerLine, 7> a, b;
+};
+
+// Signed distances r_i between line a_i and T b_i, and their Jacobian for T <- exp(xi) T, xi = (omega, v).
+void residuals(const LinePairs& lines, const RigidTransform& T, Vec7* r, Mat76* J) {
+  for (int i = 0; i < 7; ++i) {
+    const PluckerLine& la = lines.a[i];
+    const PluckerLine lb = lines.b[i].moved(T);
+    const Vec3 c = la.d.cross(lb.d);
+    const double n = std::max(c.norm(), kMinLineSine);
+    const double e = la.d.dot(lb.m) + lb.d.dot(la.m);
+    (*r)(i) = e / n;
+    if (J) {
+      // de = omega·(m' x d_a + d' x m_a) + v·(d' x d_a);  dn = (d_a·d') c·omega / n
+      const Vec3 de_domega = lb.m.cross(la.d) + lb.d.cross(la.m);
+      const Vec3 de_dv = lb.d.cross(la.d);
+      const Vec3 dn_domega = (la.d.dot(lb.d) / n) * c;
+      J->block<1, 3>(i, 0) = (de_domega / n - (e / (n * n)) * dn_domega).transpose();
+      J->block<1, 3>(i, 3) = (de_dv / n).transpose();
+    }
+  }
+}
+
+RigidTransform exp_left(const Vec6& xi, const RigidTransform& T) {
+  const Vec3 omega = xi.head<3>();
+  const double angle = omega.norm();
+  const Mat3 dR = angle > 0.0 ? Eigen::AngleAxisd(angle, omega / angle).toRotationMatrix() : Mat3::Identity();
+  return {dR * T.R, dR * T.t + xi.tail<3>()};
+}
+
+bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solve7LOptions& options,
+                  RigidTransform* T_out, int* iterations) {
+  RigidTransform T = init;
+  Vec7 r;
+  Mat76 J;
+  residuals(lines, T, &r, &J);
+  double cost = r.squaredNorm();
+  double damping = 1e-9;
+  bool converged = false;
+  int it = 0;
+  while (it < options.max_iterations) {
+    ++it;
+    const Mat6 H = J.transpose() * J;
+    const Vec6 g = J.transpose() * r;
+    Mat6 A = H;
+    A.diagonal() += damping * (H.diagonal().array() + 1e-12).matrix();
+    const Vec6 step = -A.ldlt().solve(g);
+    if (!step.allFinite()) break;
+    const RigidTransform T_new = exp_left(step, T);
+    Vec7 r_new;
+    residuals(lines, T_new, &r_new, nullptr);
+    const double cost_new = r_new.squaredNorm();
+    const double step_size = step.cwiseAbs().maxCoeff();
+    if (cost_new <= cost) {
+      T = T_new;
+      cost = cost_new;
+      r = r_new;
+      residuals(lines, T, &r, &J);
+      damping = std::max(damping * 0.1, 1e-12);
+      if (step_size < options.tolerance) {
+        converged = true;
+        break;
+      }
+    } else {
+      // no decrease: at the floor of rounding (or of the noise) once the step is tiny or damping is exhausted
+      if (step_size < options.tolerance || damping > kMaxDamping) {
+        converged = true;
+        break;
+      }
+      damping *= 10.0;
+    }
+  }
+  *T_out = T;
+  *iterations = it;
+  return converged;
+}
+
+// Closest points of the lines through (p0, p1) and (q0, q1); parallel lines use p0 and its foot on the other.
+void closest_points(const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3& q1, Vec3* on_p, Vec3* on_q) {
+  const Vec3 u = p1 - p0, v = q1 - q0, w = p0 - q0;
+  const double a = u.dot(u), b = u.dot(v), c = v.dot(v), d = u.dot(w), e = v.dot(w);
+  const double den = a * c - b * b;
+  if (den > 1e-14 * a * c) {
+    *on_p = p0 + ((b * e - c * d) / den) * u;
+    *on_q = q0 + ((a * e - b * d) / den) * v;
+  } else {
+    *on_p = p0;
+    *on_q = q0 + (e / c) * v;
+  }
+}
+
+// Rigid transform minimizing sum |R src_i + t - dst_i|^2 (Kabsch); src_centered = src - src_mean.
+RigidTransform kabsch(const std::array<Vec3, 14>& src_centered, const Vec3& src_mean, const std::array<Vec3, 14>& dst) {
+  Vec3 dst_mean = Vec3::Zero();
+  for (const Vec3& q : dst) dst_mean += q;
+  dst_mean /= 14.0;
+  Mat3 H = Mat3::Zero();
+  for (int i = 0; i < 14; ++i) H.noalias() += src_centered[i] * (dst[i] - dst_mean).transpose();
+  const Eigen::JacobiSVD<Mat3> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Mat3 V = svd.matrixV();
+  if ((V * svd.matrixU().transpose()).determinant() < 0.0) V.col(2) = -V.col(2);
+  RigidTransform T;
+  T.R = V * svd.matrixU().transpose();
+  T.t = dst_mean - T.R * src_mean;
+  return T;
+}
+
+bool alternating_projection(const std::array<Segment, 7>& segments_a, const std::array<Segment, 7>& segments_b,
+                            const RigidTransform& init, const Solve7LOptions& options, RigidTransform* T_out,
+                            int* iterations) {
+  std::array<Vec3, 14> src_a, src_b, cur_a, cur_b, moved_a, moved_b;
+  for (int i = 0; i < 7; ++i) {
+    src_a[2 * i] = segments_a[i].a;
+    src_a[2 * i + 1] = segments_a[i].b;
+    src_b[2 * i] = segments_b[i].a;
+    src_b[2 * i + 1] = segments_b[i].b;
+  }
+  Vec3 mean_a = Vec3::Zero(), mean_b = Vec3::Zero();
+  for (int k = 0; k < 14; ++k) {
+    mean_a += src_a[k];
+    mean_b += src_b[k];
+  }
+  mean_a /= 14.0;
+  mean_b /= 14.0;
+  std::array<Vec3, 14> centered_a, centered_b;
+  for (int k = 0; k < 14; ++k) {
+    centered_a[k] = src_a[k] - mean_a;
+    centered_b[k] = src_b[k] - mean_b;
+    cur_a[k] = src_a[k];
+    cur_b[k] = init.apply(src_b[k]);
+  }
+  RigidTransform Ta, Tb = init;  // current rigid placement of each frame
+  bool converged = false;
+  int it = 0;
+  while (it < options.max_iterations) {
+    ++it;
+    for (int i = 0; i < 7; ++i) {  // intersection projection
+      Vec3 m, n;
+      closest_points(cur_a[2 * i], cur_a[2 * i + 1], cur_b[2 * i], cur_b[2 * i + 1], &m, &n);
+      const Vec3 half_gap = 0.5 * (n - m);
+      moved_a[2 * i] = cur_a[2 * i] + half_gap;
+      moved_a[2 * i + 1] = cur_a[2 * i + 1] + half_gap;
+      moved_b[2 * i] = cur_b[2 * i] - half_gap;
+      moved_b[2 * i + 1] = cur_b[2 * i + 1] - half_gap;
+    }
+    Ta = kabsch(centered_a, mean_a, moved_a);  // rigidity projection
+    Tb = kabsch(centered_b, mean_b, moved_b);
+    double update = 0.0;
+    for (int k = 0; k < 14; ++k) {
+      const Vec3 na = Ta.apply(src_a[k]), nb = Tb.apply(src_b[k]);
+      update = std::max(update, std::max((na - cur_a[k]).cwiseAbs().maxCoeff(), (nb - cur_b[k]).cwiseAbs().maxCoeff()));
+      cur_a[k] = na;
+      cur_b[k] = nb;
+    }
+    if (!(update == update)) break;  // NaN
+    if (update < options.tolerance) {
+      converged = true;
+      break;
+    }
+  }
+  *T_out = Ta.inverse() * Tb;
+  *iterations = it;
+  return converged;
+}
+
+}  // namespace
+
+int solve_7l(const std::array<Segment, 7>& segments_a, const std::array<Segment, 7>& segments_b,
+             const RigidTransform& init, RigidTransform* solution, const Solve7LOptions& options,
+             Solve7LStats* stats) {
+  Solve7LStats local;
+  Solve7LStats& st = stats ? *stats : local;
+  st = Solve7LStats{};
+  if (!init.is_finite()) return 0;
+  LinePairs lines;
+  for (int i = 0; i < 7; ++i) {
+    const Segment& sa = segments_a[i];
+    const Segment& sb = segments_b[i];
+    if (!solver_input::is_finite(sa.a) || !solver_input::is_finite(sa.b) || !solver_input::is_finite(sb.a) ||
+        !solver_input::is_finite(sb.b))
+      return 0;
+    if (!(sa.length() > kMinSegmentLength) || !(sb.length() > kMinSegmentLength)) return 0;
+    lines.a[i] = sa.line();
+    lines.b[i] = sb.line();
+  }
+  RigidTransform T;
+  // start from a proper rotation even if the guess is slightly off SO(3)
+  RigidTransform start = init;
+  const Eigen::JacobiSVD<Mat3> svd(init.R, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  start.R = svd.matrixU() * svd.matrixV().transpose();
+  if (start.R.determinant() < 0.0) return 0;
+  if (options.method == Solve7LMethod::kGaussNewton) {
+    st.converged = gauss_newton(lines, start, options, &T, &st.iterations);
+  } else {
+    st.converged = alternating_projection(segments_a, segments_b, start, options, &T, &st.iterations);
+  }
+  if (!T.is_finite()) return 0;
+  Vec7 r;
+  Mat76 J;
+  residuals(lines, T, &r, &J);
+  st.residual = r.cwiseAbs().maxCoeff();
+  if (!st.converged || !(st.residual <= options.max_residual)) return 0;
+  const Eigen::SelfAdjointEigenSolver<Mat6> eig(J.transpose() * J, Eigen::EigenvaluesOnly);
+  const double lo = eig.eigenvalues()(0), hi = eig.eigenvalues()(5);
+  if (!(hi > 0.0) || !(lo > kMinSingularRatio * kMinSingularRatio * hi)) return 0;
+  *solution = T;
+  return 1;
+}
+
+}  // namespace line_odom
