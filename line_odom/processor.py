@@ -1,0 +1,468 @@
+"""The node's processing core without rclpy: sensor messages in, Odometry / Path / TFMessage / DiagnosticArray
+out. The rclpy node (line_odom.node) wires it to topics; replay drives it in-process, frame by frame.
+
+Frames (REP-105): the published pose is the base's, ``T_odom_base = T_init · T_base_sensor · T_s0_sk ·
+inv(T_base_sensor)``, where ``T_s0_sk`` is the engine's sensor pose relative to its first frame and ``T_init``
+(parameter ``initial_pose``) defines the odom frame by the base's pose at the first frame.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+import math
+import threading
+import time
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from line_odom import convert, frames
+from line_odom_core.config import Config, config_schema, load_config
+
+INPUTS = ("pointcloud", "depth")
+FIRST_POSE_VARIANCE = 1e-9  # the first pose is exact by definition; a floor keeps the covariance definite
+UNKNOWN_TWIST_VARIANCE = 1e6  # first frame after a (re)start: no motion observed yet
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeParameter:
+    """One node (non-engine) parameter: dotted name, type, default, description, inclusive range or choices."""
+
+    name: str
+    type: type  # bool, int, float, str or list (of float)
+    default: Any
+    description: str
+    min: float | None = None
+    max: float | None = None
+    choices: tuple[str, ...] | None = None
+
+
+NODE_PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("input", str, "pointcloud", "input kind: pointcloud (topic 'points', sensor_msgs/PointCloud2) or "
+                  "depth (topics 'depth/image' + 'depth/camera_info')", choices=INPUTS),
+    NodeParameter("odom_frame", str, "odom", "frame of the published pose (Odometry header.frame_id, TF parent)"),
+    NodeParameter("base_frame", str, "base_link", "robot base frame (Odometry child_frame_id, TF child)"),
+    NodeParameter("publish_tf", bool, True, "broadcast odom_frame -> base_frame on /tf"),
+    NodeParameter("base_to_sensor", list, [0.0] * 6, "pose of the sensor in the base frame, T_base_sensor: "
+                  "[x, y, z, roll, pitch, yaw] (m, rad) or [x, y, z, qx, qy, qz, qw]"),
+    NodeParameter("initial_pose", list, [0.0] * 6, "pose of the base in the odom frame at the first frame and after "
+                  "a reset: [x, y, z, roll, pitch, yaw] (m, rad) or [x, y, z, qx, qy, qz, qw]"),
+    NodeParameter("path.max_poses", int, 1000, "poses kept in the published nav_msgs/Path (oldest dropped)", 1,
+                  1_000_000),
+    NodeParameter("qos.reliable", bool, False, "subscribe to the input with reliable QoS instead of SensorDataQoS "
+                  "(best effort; REP-2003)"),
+    NodeParameter("qos.depth", int, 5, "input subscription queue depth", 1, 1000),
+    NodeParameter("max_points", int, 2_000_000, "reject clouds with more points than this (0 = no limit)", 0,
+                  1_000_000_000),
+    NodeParameter("diagnostics.period", float, 1.0, "seconds between /diagnostics messages", 0.05, 3600.0),
+)
+NODE_PARAMETER_NAMES = {p.name for p in NODE_PARAMETERS}
+IGNORED_KEYS = {"use_sim_time", "preset"}
+
+
+def validate_node_value(name: str, value: Any) -> Any:
+    """The value converted to the node parameter's type; ValueError naming the parameter and what it expects."""
+    spec = next((p for p in NODE_PARAMETERS if p.name == name), None)
+    if spec is None:
+        raise ValueError(f"unknown node parameter {name!r}; known: {', '.join(sorted(NODE_PARAMETER_NAMES))}")
+    if spec.type is list:
+        if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+            raise ValueError(f"{name}: expected a list of numbers, got {value!r}")
+        values = list(value)
+        frames.pose_from_params(values, name)  # validates length and values
+        return [float(v) for v in values]
+    bad = f"{name}: expected {spec.type.__name__}"
+    if spec.choices:
+        bad += " (one of " + ", ".join(spec.choices) + ")"
+    elif spec.min is not None:
+        bad += f" in [{spec.min}, {spec.max}]"
+    bad += f", got {value!r}"
+    if spec.type is bool:
+        if not isinstance(value, bool):
+            raise ValueError(bad)
+        return value
+    if spec.type is str:
+        if not isinstance(value, str) or (spec.choices and value not in spec.choices) or (
+                not spec.choices and not value):
+            raise ValueError(bad)
+        return value
+    if isinstance(value, (bool, str, bytes)):
+        raise ValueError(bad)
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(bad) from None
+    if not math.isfinite(number) or (spec.type is int and number != int(number)):
+        raise ValueError(bad)
+    number = int(number) if spec.type is int else number
+    if (spec.min is not None and number < spec.min) or (spec.max is not None and number > spec.max):
+        raise ValueError(bad)
+    return number
+
+
+@dataclasses.dataclass
+class NodeSettings:
+    """The node's own settings (the engine's are in line_odom_core.Config)."""
+
+    input: str = "pointcloud"
+    odom_frame: str = "odom"
+    base_frame: str = "base_link"
+    publish_tf: bool = True
+    base_to_sensor: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
+    initial_pose: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
+    path_max_poses: int = 1000
+    qos_reliable: bool = False
+    qos_depth: int = 5
+    max_points: int = 2_000_000
+    diagnostics_period: float = 1.0
+
+    @staticmethod
+    def attribute(name: str) -> str:
+        return name.replace(".", "_")
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any], *, strict: bool = True) -> "NodeSettings":
+        """Settings from dotted parameter names (e.g. a Config's ``extra``). Unknown names raise ValueError when
+        ``strict`` (engine names and use_sim_time/preset are not looked at)."""
+        settings = cls()
+        for name, value in values.items():
+            if name in IGNORED_KEYS:
+                continue
+            if name not in NODE_PARAMETER_NAMES:
+                if strict:
+                    raise ValueError(f"unknown parameter {name!r}: neither an engine setting nor a node parameter "
+                                     f"({', '.join(sorted(NODE_PARAMETER_NAMES))})")
+                continue
+            setattr(settings, cls.attribute(name), validate_node_value(name, value))
+        # parse once so a bad pose fails here, not on the first frame
+        frames.pose_from_params(settings.base_to_sensor, "base_to_sensor")
+        frames.pose_from_params(settings.initial_pose, "initial_pose")
+        return settings
+
+    def as_dict(self) -> dict[str, Any]:
+        return {p.name: getattr(self, self.attribute(p.name)) for p in NODE_PARAMETERS}
+
+
+@dataclasses.dataclass
+class FrameOutput:
+    """What one processed frame publishes, as messages and as numpy (for replay and tests)."""
+
+    stamp: float
+    T_odom_base: np.ndarray
+    pose_covariance: np.ndarray  # 6x6, PoseWithCovariance convention (parent-frame axes)
+    twist: np.ndarray  # (vx vy vz wx wy wz) in base_frame
+    twist_covariance: np.ndarray
+    stats: dict
+    latency_ms: float
+    odometry: Any
+    path: Any
+    tf: Any | None
+    reset_reason: str | None = None
+
+
+def _logger_call(logger, level: str) -> Callable[[str], None]:
+    if logger is None:
+        logger = logging.getLogger("line_odom")
+    fn = getattr(logger, level, None) or getattr(logger, "warn", None) or print
+    return fn
+
+
+class OdometryProcessor:
+    """Frame-by-frame odometry over sensor messages; thread-safe (one frame at a time; counters and reset may be
+    called from other threads).
+
+    config: engine settings (line_odom_core.Config); settings: NodeSettings (default: from ``config.extra``);
+    engine: an object with register_points/register_organized/register_depth/reset (default:
+    ``line_odom_core.Odometry(config)``); logger: anything with ``info``/``warning``/``error`` (rclpy or logging)."""
+
+    def __init__(self, config: Config | None = None, settings: NodeSettings | None = None, *, engine=None,
+                 logger=None):
+        self.config = config if config is not None else load_config("kitti_hdl64")
+        self.settings = settings if settings is not None else NodeSettings.from_mapping(self.config.extra)
+        if self.settings.input not in INPUTS:
+            raise ValueError(f"input: expected one of {INPUTS}, got {self.settings.input!r}")
+        if engine is None:
+            from line_odom_core import Odometry
+
+            engine = Odometry(self.config)
+        self.engine = engine
+        self._info = _logger_call(logger, "info")
+        self._warn = _logger_call(logger, "warning")
+        self.T_base_sensor = frames.pose_from_params(self.settings.base_to_sensor, "base_to_sensor")
+        self.T_sensor_base = frames.inverse(self.T_base_sensor)
+        self.T_init = frames.pose_from_params(self.settings.initial_pose, "initial_pose")
+        self._frame_lock = threading.RLock()
+        self._count_lock = threading.Lock()
+        self._K: np.ndarray | None = None
+        self.counters = collections.Counter(
+            frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
+            frames_duplicate=0, resets=0)
+        self.last_error: str | None = None
+        self._receive_times: collections.deque = collections.deque(maxlen=50)
+        self._latencies: collections.deque = collections.deque(maxlen=200)
+        self._last_stats: dict = {}
+        self._window_start = dict(self.counters)
+        self.sensor_frame = ""
+        self._clear_state()
+
+    # ------------------------------------------------------------------ construction helpers
+    @classmethod
+    def from_parameters(cls, preset_or_path: str = "kitti_hdl64", overrides: Mapping[str, Any] | None = None,
+                        **kwargs) -> "OdometryProcessor":
+        """From a preset name or ROS parameter YAML, with dotted overrides (engine or node names)."""
+        overrides = dict(overrides or {})
+        node_over = {k: v for k, v in overrides.items() if k in NODE_PARAMETER_NAMES or k in IGNORED_KEYS}
+        engine_over = {k: v for k, v in overrides.items() if k not in node_over}
+        config = load_config(preset_or_path, engine_over)
+        settings = NodeSettings.from_mapping({**config.extra, **node_over})
+        return cls(config, settings, **kwargs)
+
+    # ------------------------------------------------------------------ state
+    def _clear_state(self) -> None:
+        self._last_stamp: float | None = None
+        self._engine_origin_inv: np.ndarray | None = None
+        self._T_prev: np.ndarray | None = None
+        self._cov_left = np.eye(6) * FIRST_POSE_VARIANCE
+        self._path_poses: collections.deque = collections.deque(maxlen=self.settings.path_max_poses)
+
+    def reset(self, reason: str = "reset requested") -> None:
+        """Forget the trajectory: the next frame is at ``initial_pose`` again."""
+        with self._frame_lock:
+            self.engine.reset()
+            self._clear_state()
+        with self._count_lock:
+            self.counters["resets"] += 1
+        self._info(f"odometry reset ({reason}); the next frame starts at initial_pose")
+
+    # ------------------------------------------------------------------ counters
+    def note_received(self, now: float | None = None) -> None:
+        with self._count_lock:
+            self.counters["frames_received"] += 1
+            self._receive_times.append(time.monotonic() if now is None else now)
+
+    def note_dropped(self, n: int = 1) -> None:
+        with self._count_lock:
+            self.counters["frames_dropped"] += n
+
+    def _reject(self, kind: str, reason: str) -> None:
+        with self._count_lock:
+            self.counters[kind] += 1
+            self.last_error = reason
+        self._warn(f"dropped frame: {reason}")
+
+    # ------------------------------------------------------------------ inputs
+    @property
+    def has_camera_info(self) -> bool:
+        return self._K is not None
+
+    def set_camera_info(self, msg) -> bool:
+        """Validate and keep the intrinsics; a malformed CameraInfo is counted and the previous K is kept."""
+        try:
+            K = convert.camera_info_to_K(msg)
+        except convert.ConversionError as err:
+            self._reject("frames_malformed", str(err))
+            return False
+        self._K = K
+        return True
+
+    def process_pointcloud(self, msg, receive_time: float | None = None) -> FrameOutput | None:
+        """One PointCloud2 -> outputs; None when the frame was dropped (logged and counted)."""
+        t0 = time.perf_counter()
+        try:
+            cloud = convert.pointcloud2_to_arrays(msg, max_points=self.settings.max_points)
+        except convert.ConversionError as err:
+            self._reject("frames_malformed", str(err))
+            return None
+        if cloud.organized:
+            run = lambda stamp: self.engine.register_organized(cloud.xyz, stamp)  # noqa: E731
+        else:
+            run = lambda stamp: self.engine.register_points(cloud.xyz, stamp, ring=cloud.ring)  # noqa: E731
+        return self._register(run, cloud.stamp, cloud.frame_id, t0, receive_time)
+
+    def process_depth(self, image, camera_info=None, receive_time: float | None = None) -> FrameOutput | None:
+        """One depth Image (+ its CameraInfo, or the last valid one) -> outputs; None when dropped."""
+        t0 = time.perf_counter()
+        if camera_info is not None:
+            self.set_camera_info(camera_info)
+        try:
+            depth = convert.image_to_depth(image)
+        except convert.ConversionError as err:
+            self._reject("frames_malformed", str(err))
+            return None
+        K = self._K
+        if K is None:
+            self._reject("frames_dropped", "no valid CameraInfo received yet for the depth image")
+            return None
+        stamp = convert.stamp_to_sec(image.header.stamp)
+        return self._register(lambda s: self.engine.register_depth(depth, K, s), stamp,
+                              str(image.header.frame_id), t0, receive_time)
+
+    # ------------------------------------------------------------------ core
+    def _register(self, run, stamp: float, frame_id: str, t0: float, receive_time: float | None):
+        with self._frame_lock:
+            reset_reason = None
+            if self._last_stamp is not None and stamp == self._last_stamp:
+                self._reject("frames_duplicate", f"stamp {stamp:.9f} repeats the previous frame's stamp")
+                return None
+            if self._last_stamp is not None and stamp < self._last_stamp:
+                reset_reason = (f"stamp went backwards from {self._last_stamp:.9f} to {stamp:.9f} s "
+                                f"(looping bag or restarted clock?)")
+                self._warn(reset_reason + "; resetting odometry")
+                self.engine.reset()
+                self._clear_state()
+                with self._count_lock:
+                    self.counters["resets"] += 1
+            try:
+                result = run(stamp)
+            except ValueError as err:
+                self._reject("frames_failed", f"registration rejected the frame: {err}")
+                return None
+            pose, delta, cov = (np.asarray(result.pose, float), np.asarray(result.delta, float),
+                                np.asarray(result.covariance, float))
+            if not (np.isfinite(pose).all() and np.isfinite(delta).all() and np.isfinite(cov).all()):
+                self._reject("frames_failed", "registration returned a non-finite pose or covariance")
+                return None
+            out = self._outputs(stamp, frame_id, pose, delta, cov, dict(result.stats))
+            out.reset_reason = reset_reason
+        end = time.perf_counter()
+        out.latency_ms = 1e3 * ((time.monotonic() - receive_time) if receive_time is not None else (end - t0))
+        with self._count_lock:
+            self.counters["frames_processed"] += 1
+            self._latencies.append(out.latency_ms)
+            self._last_stats = out.stats
+        self.sensor_frame = frame_id or self.sensor_frame
+        return out
+
+    def _outputs(self, stamp, frame_id, pose, delta, cov_delta, stats) -> FrameOutput:
+        X, X_inv = self.T_base_sensor, self.T_sensor_base
+        first = self._engine_origin_inv is None
+        if first:
+            self._engine_origin_inv = frames.inverse(pose)
+        T = self.T_init @ X @ (self._engine_origin_inv @ pose) @ X_inv
+        if first:
+            twist = np.zeros(6)
+            twist_cov = np.eye(6) * UNKNOWN_TWIST_VARIANCE
+        else:
+            D = X @ delta @ X_inv  # base motion prev -> curr
+            cov_d = frames.conjugate_covariance(cov_delta, X)  # left perturbation in the previous base frame
+            self._cov_left = frames.symmetrize(self._cov_left + frames.conjugate_covariance(cov_d, self._T_prev))
+            dt = stamp - self._last_stamp
+            xi = frames.log_se3(D)
+            twist = xi / dt
+            J = frames.left_jacobian_inverse(xi)  # perturbation of log(D) from the left perturbation of D
+            twist_cov = frames.symmetrize(J @ cov_d @ J.T) / (dt * dt)
+        pose_cov = frames.left_to_ros_pose_covariance(self._cov_left, T)
+        self._T_prev = T
+        self._last_stamp = stamp
+        odom, pose_stamped, tf = self._messages(stamp, T, pose_cov, twist, twist_cov)
+        self._path_poses.append(pose_stamped)
+        path = self._path_message(pose_stamped.header)
+        return FrameOutput(stamp, T, pose_cov, twist, twist_cov, stats, 0.0, odom, path, tf)
+
+    # ------------------------------------------------------------------ messages
+    def _messages(self, stamp, T, pose_cov, twist, twist_cov):
+        from geometry_msgs.msg import PoseStamped, TransformStamped
+        from nav_msgs.msg import Odometry
+
+        stamp_msg = convert.sec_to_stamp(stamp)
+        q = frames.quaternion_xyzw(T[:3, :3])
+        odom = Odometry()
+        odom.header.stamp = stamp_msg
+        odom.header.frame_id = self.settings.odom_frame
+        odom.child_frame_id = self.settings.base_frame
+        p = odom.pose.pose
+        p.position.x, p.position.y, p.position.z = (float(v) for v in T[:3, 3])
+        p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = (float(v) for v in q)
+        odom.pose.covariance = pose_cov.reshape(-1).tolist()
+        tw = odom.twist.twist
+        tw.linear.x, tw.linear.y, tw.linear.z = (float(v) for v in twist[:3])
+        tw.angular.x, tw.angular.y, tw.angular.z = (float(v) for v in twist[3:])
+        odom.twist.covariance = twist_cov.reshape(-1).tolist()
+        pose_stamped = PoseStamped()
+        pose_stamped.header = odom.header
+        pose_stamped.pose = p
+        tf = None
+        if self.settings.publish_tf:
+            from tf2_msgs.msg import TFMessage
+
+            ts = TransformStamped()
+            ts.header = odom.header
+            ts.child_frame_id = self.settings.base_frame
+            ts.transform.translation.x, ts.transform.translation.y, ts.transform.translation.z = (
+                float(v) for v in T[:3, 3])
+            r = ts.transform.rotation
+            r.x, r.y, r.z, r.w = (float(v) for v in q)
+            tf = TFMessage(transforms=[ts])
+        return odom, pose_stamped, tf
+
+    def _path_message(self, header):
+        from nav_msgs.msg import Path
+
+        path = Path()
+        path.header = header
+        path.poses = list(self._path_poses)
+        return path
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostics_values(self) -> dict[str, Any]:
+        with self._count_lock:
+            counters = dict(self.counters)
+            receive = list(self._receive_times)
+            lat = np.array(self._latencies, dtype=float)
+            stats = dict(self._last_stats)
+            last_error = self.last_error
+        rate = 0.0
+        if len(receive) >= 2 and receive[-1] > receive[0]:
+            rate = (len(receive) - 1) / (receive[-1] - receive[0])
+        values: dict[str, Any] = {**counters, "input_rate_hz": rate}
+        if lat.size:
+            values.update(latency_ms_last=lat[-1], latency_ms_mean=float(lat.mean()),
+                          latency_ms_p95=float(np.percentile(lat, 95)))
+        for key in ("solver", "inliers", "degenerate", "candidates", "h_lines", "v_lines", "planes"):
+            if key in stats:
+                values[key] = stats[key]
+        for stage, ms in (stats.get("ms") or {}).items():
+            values[f"ms.{stage}"] = ms
+        values["last_error"] = last_error or ""
+        return values
+
+    def diagnostics(self, stamp_msg=None):
+        """A DiagnosticArray (one status): OK, or WARN when the last frame was degenerate or frames were dropped,
+        malformed or failed since the previous call."""
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        values = self.diagnostics_values()
+        with self._count_lock:
+            since = {k: self.counters[k] - self._window_start.get(k, 0) for k in self.counters}
+            self._window_start = dict(self.counters)
+        status = DiagnosticStatus()
+        status.name = "line_odom: odometry"
+        status.hardware_id = self.sensor_frame or self.settings.input
+        problems = []
+        if values.get("degenerate"):
+            problems.append("degenerate geometry: pose held by the motion model, covariance inflated")
+        for key, text in (("frames_malformed", "malformed"), ("frames_failed", "failed"),
+                          ("frames_dropped", "dropped (processing behind or no CameraInfo)"),
+                          ("frames_duplicate", "with a repeated stamp")):
+            if since.get(key):
+                problems.append(f"{since[key]} frame(s) {text}")
+        if values["frames_processed"] == 0:
+            status.level = DiagnosticStatus.WARN
+            status.message = "waiting for input" if values["frames_received"] == 0 else "no frame processed yet"
+            if problems:
+                status.message += "; " + "; ".join(problems)
+        elif problems:
+            status.level = DiagnosticStatus.WARN
+            status.message = "; ".join(problems)
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = "tracking"
+        for key, value in values.items():
+            text = f"{value:.3f}" if isinstance(value, float) else str(value)
+            status.values.append(KeyValue(key=key, value=text))
+        array = DiagnosticArray()
+        if stamp_msg is not None:
+            array.header.stamp = stamp_msg
+        array.status = [status]
+        return array

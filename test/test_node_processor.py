@@ -1,0 +1,259 @@
+"""The node's processing core (line_odom.processor) without DDS: frame algebra (extrinsic, initial pose),
+twist, covariance propagation, stamps, malformed input, path bound, messages and diagnostics.
+
+The frame algebra is checked exactly with a scripted engine that replays known sensor poses (the real engine's
+accuracy is checked end to end in test_node.py)."""
+import dataclasses
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+from scipy.spatial.transform import Rotation
+
+from line_odom import convert, frames
+from line_odom.processor import NodeSettings, OdometryProcessor, validate_node_value
+from line_odom_core.config import load_config
+
+
+def _T(xyz, rpy):
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+    T[:3, 3] = xyz
+    return T
+
+
+@dataclasses.dataclass
+class _Result:
+    pose: np.ndarray
+    delta: np.ndarray
+    covariance: np.ndarray
+    stats: dict
+
+
+class ScriptedEngine:
+    """Replays given sensor poses T_world_sensor (as the engine would report them) with a fixed delta covariance."""
+
+    def __init__(self, sensor_poses, cov):
+        self.poses = list(sensor_poses)
+        self.cov = cov
+        self.k = 0
+        self.prev = None
+        self.resets = 0
+
+    def _next(self, stamp):
+        pose = self.poses[self.k]
+        self.k += 1
+        delta = np.eye(4) if self.prev is None else np.linalg.inv(self.prev) @ pose
+        self.prev = pose
+        return _Result(pose, delta, self.cov, {"solver": "3L1P", "inliers": 321, "degenerate": False,
+                                               "ms": {"total": 12.5}})
+
+    def register_points(self, xyz, stamp, ring=None):
+        assert xyz.shape[1] == 3
+        return self._next(stamp)
+
+    def register_organized(self, xyz, stamp):
+        assert xyz.ndim == 3
+        return self._next(stamp)
+
+    def register_depth(self, depth, K, stamp):
+        return self._next(stamp)
+
+    def reset(self, pose=None):
+        self.prev = None
+        self.resets += 1
+
+
+def _cloud(stamp, n=50):
+    rng = np.random.default_rng(0)
+    return convert.pointcloud2_from_xyz(rng.normal(size=(n, 3)), frame_id="lidar", stamp=stamp)
+
+
+def _processor(sensor_poses, cov=None, **settings):
+    cov = np.diag([1e-4, 2e-4, 3e-4, 1e-6, 2e-6, 3e-6]) if cov is None else cov
+    engine = ScriptedEngine(sensor_poses, cov)
+    config = load_config("kitti_hdl64")
+    s = NodeSettings.from_mapping({**config.extra, **settings})
+    return OdometryProcessor(config, s, engine=engine), engine
+
+
+def test_base_pose_from_sensor_poses_with_extrinsic_and_initial_pose():
+    X = _T([1.2, -0.3, 1.7], [0.1, -0.2, 1.3])  # T_base_sensor
+    B0 = _T([10.0, 5.0, 0.5], [0.0, 0.0, 0.7])  # initial base pose in odom
+    base = [B0 @ _T([k * 1.0, 0.1 * k * k, 0.0], [0.0, 0.01 * k, 0.05 * k]) for k in range(6)]
+    world_offset = _T([3, 4, 5], [0.3, 0.2, 0.1])  # the engine's world is arbitrary: only relative poses count
+    sensor = [world_offset @ np.linalg.inv(X) @ np.linalg.inv(B0) @ B @ X for B in base]
+    proc, _ = _processor(sensor, base_to_sensor=[1.2, -0.3, 1.7, 0.1, -0.2, 1.3],
+                         initial_pose=[10.0, 5.0, 0.5, 0.0, 0.0, 0.7])
+    for k, B in enumerate(base):
+        out = proc.process_pointcloud(_cloud(100.0 + 0.1 * k))
+        np.testing.assert_allclose(out.T_odom_base, B, atol=1e-9)
+        q = out.odometry.pose.pose.orientation
+        np.testing.assert_allclose(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), B[:3, :3], atol=1e-9)
+        p = out.odometry.pose.pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], B[:3, 3], atol=1e-9)
+        if k:
+            # twist: the constant body twist that moves the base from the previous pose to this one in dt
+            D = np.linalg.inv(base[k - 1]) @ B
+            xi = out.twist * 0.1
+            np.testing.assert_allclose(frames.log_se3(D), xi, atol=1e-9)
+            from scipy.linalg import expm
+            hat = np.zeros((4, 4))
+            hat[:3, :3] = frames.skew(xi[3:])
+            hat[:3, 3] = xi[:3]
+            np.testing.assert_allclose(expm(hat), D, atol=1e-9)
+
+
+def test_quaternion_initial_pose_equals_rpy():
+    q = Rotation.from_euler("xyz", [0.1, 0.2, 0.3]).as_quat()
+    a = frames.pose_from_params([1, 2, 3, *q], "initial_pose")
+    b = frames.pose_from_params([1, 2, 3, 0.1, 0.2, 0.3], "initial_pose")
+    np.testing.assert_allclose(a, b, atol=1e-12)
+    with pytest.raises(ValueError, match="initial_pose: expected 6 values"):
+        frames.pose_from_params([1, 2, 3], "initial_pose")
+    with pytest.raises(ValueError, match="unit norm"):
+        frames.pose_from_params([0, 0, 0, 0, 0, 0, 2.0], "initial_pose")
+
+
+def test_twist_of_straight_motion_and_covariance_propagation():
+    v = 10.0  # m/s along x, 10 Hz
+    sensor = [_T([v * 0.1 * k, 0, 0], [0, 0, 0]) for k in range(5)]
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    proc, _ = _processor(sensor, cov)
+    outs = [proc.process_pointcloud(_cloud(50.0 + 0.1 * k)) for k in range(5)]
+    np.testing.assert_allclose(outs[0].twist, 0)
+    for out in outs[1:]:
+        np.testing.assert_allclose(out.twist, [v, 0, 0, 0, 0, 0], atol=1e-9)
+        J = np.eye(6) - 0.5 * frames.ad(np.array([1.0, 0, 0, 0, 0, 0]))  # ad^2 = 0 for a pure translation
+        np.testing.assert_allclose(out.twist_covariance, J @ cov @ J.T / 0.01, rtol=1e-9, atol=1e-15)
+        assert out.twist_covariance[1, 1] == pytest.approx((1e-4 + 0.25e-6) / 0.01)
+    for out in outs:
+        C = np.asarray(out.odometry.pose.covariance).reshape(6, 6)
+        np.testing.assert_allclose(C, C.T)
+        assert np.all(np.linalg.eigvalsh(C) > 0)
+    # position variance along y grows by the rotation uncertainty times the lever arm (x = 4 m after 4 steps)
+    C4 = outs[4].pose_covariance
+    assert C4[0, 0] == pytest.approx(4e-4 + 1e-9, rel=1e-6)
+    assert C4[1, 1] > 4e-4  # 4e-4 from translation + yaw uncertainty swept over the travelled distance
+    assert C4[5, 5] == pytest.approx(4e-6 + 1e-9, rel=1e-6)
+
+
+def test_extrinsic_rotates_covariance_into_base_frame():
+    # sensor mounted with yaw 90 deg: sensor x = base y
+    sensor = [np.eye(4), np.eye(4)]
+    cov = np.diag([9e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    proc, _ = _processor(sensor, cov, base_to_sensor=[0, 0, 0, 0, 0, np.pi / 2])
+    proc.process_pointcloud(_cloud(1.0))
+    out = proc.process_pointcloud(_cloud(1.1))
+    assert out.pose_covariance[1, 1] == pytest.approx(9e-4 + 1e-9, rel=1e-6)
+    assert out.pose_covariance[0, 0] == pytest.approx(1e-4 + 1e-9, rel=1e-6)
+
+
+def test_stamp_backwards_resets_and_duplicate_is_dropped():
+    sensor = [_T([k, 0, 0], [0, 0, 0]) for k in range(10)]
+    proc, engine = _processor(sensor, initial_pose=[5, 0, 0, 0, 0, 0])
+    assert proc.process_pointcloud(_cloud(10.0)) is not None
+    out = proc.process_pointcloud(_cloud(10.1))
+    assert out.T_odom_base[0, 3] == pytest.approx(6.0)
+    assert proc.process_pointcloud(_cloud(10.1)) is None  # duplicate stamp
+    assert proc.counters["frames_duplicate"] == 1
+    out = proc.process_pointcloud(_cloud(3.0))  # a looping bag
+    assert out.reset_reason and "backwards" in out.reset_reason
+    assert engine.resets == 1 and proc.counters["resets"] == 1
+    np.testing.assert_allclose(out.T_odom_base[:3, 3], [5, 0, 0])  # back at initial_pose
+    assert len(out.path.poses) == 1
+
+
+def test_malformed_frames_are_counted_and_next_good_frame_processed():
+    sensor = [_T([k, 0, 0], [0, 0, 0]) for k in range(3)]
+    proc, _ = _processor(sensor)
+    bad = _cloud(1.0)
+    bad.fields = bad.fields[1:]  # no x
+    assert proc.process_pointcloud(bad) is None
+    assert proc.counters["frames_malformed"] == 1 and "no 'x' field" in proc.last_error
+    assert proc.process_pointcloud(_cloud(1.0)) is not None
+    diag = proc.diagnostics()
+    values = {kv.key: kv.value for kv in diag.status[0].values}
+    assert values["frames_malformed"] == "1" and values["frames_processed"] == "1"
+    assert "no 'x' field" in values["last_error"]
+    assert diag.status[0].level == DiagnosticStatus.WARN and "malformed" in diag.status[0].message  # WARN
+    assert values["solver"] == "3L1P" and values["inliers"] == "321" and values["ms.total"] == "12.500"
+    diag = proc.diagnostics()  # the next period has no new problem
+    assert diag.status[0].level == DiagnosticStatus.OK
+
+
+def test_depth_needs_camera_info_and_rejects_bad_one():
+    proc, _ = _processor([np.eye(4)] * 3, input="depth")
+    img = convert.depth_to_image(np.full((4, 5), 2.0), stamp=1.0)
+    assert proc.process_depth(img) is None and proc.counters["frames_dropped"] == 1
+    bad = convert.camera_info_from_K(np.diag([0.0, 0.0, 1.0]), 5, 4)
+    assert not proc.set_camera_info(bad) and proc.counters["frames_malformed"] == 1
+    assert "focal length" in proc.last_error
+    assert proc.process_depth(img, convert.camera_info_from_K(np.diag([500.0, 500.0, 1.0]), 5, 4)) is not None
+
+
+def test_path_is_bounded_and_messages_carry_frames():
+    proc, _ = _processor([_T([k, 0, 0], [0, 0, 0]) for k in range(8)], **{"path.max_poses": 3},
+                         odom_frame="map_odom", base_frame="robot")
+    for k in range(8):
+        out = proc.process_pointcloud(_cloud(1.0 + 0.1 * k))
+    assert len(out.path.poses) == 3
+    assert [p.pose.position.x for p in out.path.poses] == [5.0, 6.0, 7.0]
+    assert out.path.header.frame_id == "map_odom"
+    assert (out.odometry.header.frame_id, out.odometry.child_frame_id) == ("map_odom", "robot")
+    (tf,) = out.tf.transforms
+    assert (tf.header.frame_id, tf.child_frame_id) == ("map_odom", "robot")
+    assert tf.transform.translation.x == 7.0
+    assert (tf.header.stamp.sec, tf.header.stamp.nanosec) == (1, 700_000_000)
+
+
+def test_publish_tf_false_gives_no_tf():
+    proc, _ = _processor([np.eye(4)], publish_tf=False)
+    assert proc.process_pointcloud(_cloud(1.0)).tf is None
+
+
+@pytest.mark.parametrize("name, value, message", [
+    ("input", "camera", "one of pointcloud, depth"),
+    ("path.max_poses", 0, r"in \[1, 1000000\]"),
+    ("publish_tf", "yes", "expected bool"),
+    ("base_to_sensor", [1, 2], "expected 6 values"),
+    ("odom_frame", "", "expected str"),
+    ("no_such_key", 1, "unknown node parameter"),
+])
+def test_bad_node_values_have_clear_errors(name, value, message):
+    with pytest.raises(ValueError, match=message) as err:
+        validate_node_value(name, value)
+    assert name in str(err.value)
+
+
+def test_from_parameters_splits_engine_and_node_overrides():
+    proc = OdometryProcessor.from_parameters("tum_kinect", {"downsample": 10, "base_frame": "cam_base"},
+                                             engine=ScriptedEngine([np.eye(4)], np.eye(6)))
+    assert proc.config["downsample"] == 10 and proc.settings.base_frame == "cam_base"
+    assert proc.settings.input == "depth"
+    with pytest.raises(ValueError, match="downsample"):
+        OdometryProcessor.from_parameters("tum_kinect", {"downsample": 0}, engine=object())
+
+
+def test_se3_log_and_left_jacobian_inverse_against_finite_differences():
+    from scipy.linalg import expm
+
+    def hat(xi):
+        H = np.zeros((4, 4))
+        H[:3, :3] = frames.skew(xi[3:])
+        H[:3, 3] = xi[:3]
+        return H
+
+    xi = np.array([0.9, -0.2, 0.1, 0.05, -0.1, 0.3])
+    D = expm(hat(xi))
+    np.testing.assert_allclose(frames.log_se3(D), xi, atol=1e-12)
+    J = frames.left_jacobian_inverse(xi)
+    eps = 1e-6
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = eps
+        numeric = (frames.log_se3(expm(hat(d)) @ D) - frames.log_se3(expm(hat(-d)) @ D)) / (2 * eps)
+        np.testing.assert_allclose(numeric, J[:, i], atol=1e-6)
+    # adjoint: T exp(xi) T^-1 = exp(Ad_T xi)
+    T = _T([1, 2, 3], [0.3, -0.2, 0.5])
+    np.testing.assert_allclose(T @ D @ np.linalg.inv(T), expm(hat(frames.adjoint(T) @ xi)), atol=1e-12)
