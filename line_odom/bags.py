@@ -299,6 +299,53 @@ def tum_to_bag(tum_dir: str | Path, out_bag: str | Path, *, storage: str = "sqli
     return len(seq)
 
 
+def lidar_frames_to_bag(out_bag: str | Path, frames, *, topic: str = "/points", frame_id: str = "lidar",
+                        storage: str = "sqlite3", overwrite: bool = False, progress: Progress | None = None,
+                        total: int | None = None) -> int:
+    """(stamp s, xyz (N, 3), ring (N,) or None, T_world_sensor or None) per frame -> PointCloud2 (x, y, z,
+    intensity = 0, ring) on `topic` and ground truth on /ground_truth; returns the number of frames."""
+    n = 0
+    with BagWriter(out_bag, storage, overwrite) as bag:
+        for stamp_s, xyz, ring, pose in frames:
+            stamp = _ns(stamp_s)
+            points = np.zeros(len(xyz), dtype=KITTI_POINT_DTYPE)
+            points["x"], points["y"], points["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+            if ring is not None:
+                points["ring"] = ring
+            bag.write(topic, POINTCLOUD2, stamp, bag.msgs.pointcloud2(stamp, frame_id, points))
+            if pose is not None:
+                bag.write(GROUND_TRUTH_TOPIC, ODOMETRY, stamp, bag.msgs.odometry(stamp, GROUND_TRUTH_FRAME, frame_id, pose))
+            n += 1
+            if progress:
+                progress(n, total)
+    return n
+
+
+def depth_frames_to_bag(out_bag: str | Path, frames, K: np.ndarray, *, topic: str = TUM_DEPTH_TOPIC,
+                        info_topic: str = TUM_INFO_TOPIC, frame_id: str = TUM_FRAME, storage: str = "sqlite3",
+                        overwrite: bool = False, progress: Progress | None = None, total: int | None = None) -> int:
+    """(stamp s, depth (H, W) metres with 0 = none, T_world_sensor or None) per frame -> 16UC1 Image
+    (millimetres) + CameraInfo, ground truth on /ground_truth; returns the number of frames."""
+    n = 0
+    K = np.asarray(K, dtype=float)
+    with BagWriter(out_bag, storage, overwrite) as bag:
+        for stamp_s, depth, pose in frames:
+            stamp = _ns(stamp_s)
+            depth = np.asarray(depth, dtype=np.float64)
+            valid = np.isfinite(depth) & (depth > 0)
+            mm = np.where(valid, np.round(depth * 1000.0), 0.0)
+            if (mm > 65535).any():
+                raise ValueError("depth: beyond 65.535 m cannot be stored as 16UC1 millimetres")
+            bag.write(info_topic, CAMERA_INFO, stamp, bag.msgs.camera_info(stamp, frame_id, K, depth.shape[1], depth.shape[0]))
+            bag.write(topic, IMAGE, stamp, bag.msgs.image16(stamp, frame_id, mm.astype(np.uint16)))
+            if pose is not None:
+                bag.write(GROUND_TRUTH_TOPIC, ODOMETRY, stamp, bag.msgs.odometry(stamp, GROUND_TRUTH_FRAME, frame_id, pose))
+            n += 1
+            if progress:
+                progress(n, total)
+    return n
+
+
 # ------------------------------------------------------------------------------------------------ reading
 
 

@@ -23,8 +23,8 @@ from line_odom import bags, convert, evaluation
 from line_odom.progress import ProgressBar
 
 PRESET_FOR_INPUT = {"pointcloud": "kitti_hdl64", "depth": "tum_kinect"}
-ODOMETRY_TOPIC = "/line_odom/odometry"
-PATH_TOPIC = "/line_odom/path"
+ODOMETRY_TOPIC = "/odom"  # the node's output topics
+PATH_TOPIC = "/path"
 
 
 @dataclasses.dataclass

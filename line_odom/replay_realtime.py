@@ -1,0 +1,209 @@
+"""`line_odom replay --realtime`: the node in its own process, the bag published over DDS at its own rate.
+
+The node (``python -m line_odom.node``) runs with ``use_sim_time``; this process publishes /clock and the bag's
+sensor messages (already serialized: no decode/encode on the way) at the pace of their log times, and records
+the node's Odometry. Latency per frame = arrival of the Odometry - publication of its input (wall clock).
+Frames the node skips because it fell behind show up as ``frames_dropped``.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from line_odom import bags, evaluation, frames as frames_mod
+
+NODE_OUTPUT_TOPIC = "/odom"
+STARTUP_TIMEOUT_S = 60.0
+DRAIN_TIMEOUT_S = 10.0
+
+
+def _fastdds_profile() -> str | None:
+    from line_odom_core.config import config_search_dirs
+
+    for d in config_search_dirs():
+        candidate = Path(d) / "fastdds_large_messages.xml"
+        if candidate.is_file():
+            return str(candidate)
+    return None
+
+
+def _ros_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_ros_value(v) for v in value) + "]"
+    return str(value)
+
+
+def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any]) -> list[str]:
+    cmd = [sys.executable, "-m", "line_odom.node", "--ros-args", "-p", f"preset:={preset_or_params}",
+           "-p", "use_sim_time:=true", "-p", f"input:={inp.kind}", "-p", "publish_tf:=false"]
+    for name, value in overrides.items():
+        cmd += ["-p", f"{name}:={_ros_value(value)}"]
+    if inp.kind == "pointcloud":
+        cmd += ["-r", f"points:={inp.topic}"]
+    else:
+        cmd += ["-r", f"depth/image:={inp.topic}", "-r", f"depth/camera_info:={inp.info_topic}"]
+    cmd += ["-r", f"odom:={NODE_OUTPUT_TOPIC}"]
+    return cmd
+
+
+def _sensor_in_base(preset_or_params: str, overrides: Mapping[str, Any]) -> np.ndarray:
+    from line_odom.processor import NODE_PARAMETER_NAMES, NodeSettings
+    from line_odom_core.config import load_config
+
+    engine_over = {k: v for k, v in overrides.items() if k not in NODE_PARAMETER_NAMES and k != "use_sim_time"}
+    config = load_config(preset_or_params, engine_over)
+    node_over = {k: v for k, v in overrides.items() if k in NODE_PARAMETER_NAMES}
+    settings = NodeSettings.from_mapping({**config.extra, **node_over})
+    return frames_mod.pose_from_params(settings.base_to_sensor, "base_to_sensor")
+
+
+def header_stamp_ns(raw: bytes) -> int:
+    """header.stamp of a serialized message that starts with a std_msgs/Header (PointCloud2, Image): the CDR
+    encapsulation (4 bytes, byte 1 = 1 for little endian) is followed by int32 sec and uint32 nanosec."""
+    order = "<" if raw[1] == 1 else ">"
+    sec, nanosec = struct.unpack_from(order + "iI", raw, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _tail(path: Path, lines: int = 5) -> str:
+    try:
+        text = path.read_text(errors="replace").strip().splitlines()
+    except OSError:
+        return ""
+    return " | ".join(text[-lines:])
+
+
+def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
+                 overrides: Mapping[str, Any] | None = None, frames: int | None = None, progress=None):
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+    from line_odom import convert
+    from line_odom.replay import PRESET_FOR_INPUT, ReplayRun
+
+    preset = params or PRESET_FOR_INPUT[inp.kind]
+    overrides = dict(overrides or {})
+    T_base_sensor = _sensor_in_base(preset, overrides)
+    profile = _fastdds_profile()
+    if profile and "FASTDDS_DEFAULT_PROFILES_FILE" not in os.environ:
+        os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = profile
+        os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", profile)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+
+    total = reader.counts.get(inp.topic, 0)
+    if frames is not None:
+        total = min(total, frames)
+    log_file = Path(tempfile.mkstemp(prefix="line_odom_node_", suffix=".log")[1])
+    with open(log_file, "wb") as log:
+        proc = subprocess.Popen(node_command(inp, preset, overrides), env=env, stdout=log, stderr=subprocess.STDOUT)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("line_odom_replay", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    received: dict[int, tuple[float, Any]] = {}
+    lock = threading.Lock()
+
+    def on_odom(msg):
+        now = time.monotonic()
+        with lock:
+            received[convert.stamp_to_ns(msg.header.stamp)] = (now, msg)
+
+    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    clock_pub = node.create_publisher(Clock, "/clock", 10)
+    data_pub = node.create_publisher(PointCloud2 if inp.kind == "pointcloud" else Image, inp.topic, reliable)
+    info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
+    sub = node.create_subscription(Odometry, NODE_OUTPUT_TOPIC, on_odom, QoSProfile(depth=1000))
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    published: dict[int, float] = {}
+    try:
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while data_pub.get_subscription_count() < 1 or sub.get_publisher_count() < 1:
+            if proc.poll() is not None:
+                raise RuntimeError(f"the node exited with code {proc.returncode} before subscribing: "
+                                   f"{_tail(log_file)}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the node did not subscribe to {inp.topic} within {STARTUP_TIMEOUT_S:.0f} s: "
+                                   f"{_tail(log_file)}")
+            time.sleep(0.05)
+        time.sleep(0.5)  # let discovery settle in both directions
+        wall0 = bag0 = None
+        n_in = 0
+        for message in reader.messages([inp.topic] + ([inp.info_topic] if inp.info_topic else [])):
+            if n_in >= total:
+                break
+            if wall0 is None:
+                wall0, bag0 = time.monotonic(), message.log_time_ns
+            delay = wall0 + (message.log_time_ns - bag0) * 1e-9 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            if proc.poll() is not None:
+                raise RuntimeError(f"the node exited with code {proc.returncode} during the replay: {_tail(log_file)}")
+            clock = Clock()
+            clock.clock.sec, clock.clock.nanosec = divmod(int(message.log_time_ns), 1_000_000_000)
+            clock_pub.publish(clock)
+            if message.topic == inp.info_topic:
+                info_pub.publish(message.raw)
+                continue
+            published[header_stamp_ns(message.raw)] = time.monotonic()
+            data_pub.publish(message.raw)
+            n_in += 1
+            if progress is not None:
+                progress.update(n_in, total)
+        drain_until = time.monotonic() + DRAIN_TIMEOUT_S
+        while time.monotonic() < drain_until:
+            with lock:
+                if len(received) >= n_in:
+                    break
+            time.sleep(0.05)
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        _stop(proc)
+        spinner.join(timeout=2.0)
+    with lock:
+        items = sorted(received.items())
+    stamps, poses, msgs, latencies = [], [], [], []
+    for stamp_ns, (arrival, msg) in items:
+        _, T = bags.odometry_to_pose(msg)
+        stamps.append(stamp_ns * 1e-9)
+        poses.append(T @ T_base_sensor)
+        msgs.append((stamp_ns, msg))
+        if stamp_ns in published:
+            latencies.append(1e3 * (arrival - published[stamp_ns]))
+    log_file.unlink(missing_ok=True)
+    estimate = evaluation.Trajectory(np.array(poses).reshape(-1, 4, 4), np.array(stamps, dtype=float))
+    return ReplayRun(estimate, msgs, latencies, n_in, {"frames_published": n_in, "frames_received": len(items)})
