@@ -6,7 +6,8 @@
 - KITTI: the odometry benchmark's segment errors (Geiger et al. 2012), computed the way the devkit's
   evaluate_odometry.cpp does: ground-truth path length per frame, segments of 100..800 m starting every
   10th frame, ``t_err = |t(inv(dE) dG)| / len`` and ``r_err = angle(inv(dE) dG) / len`` averaged over all
-  segments.
+  segments. The path lengths are accumulated in float32 as the devkit does (they decide where a segment ends);
+  the errors are computed in double (the devkit's float acos loses precision on small rotation errors).
 """
 from __future__ import annotations
 
