@@ -256,23 +256,29 @@ def _intersect_box(dx, dy, dz, R_sb, o, h, dt):
 
 
 def _intersect_cylinder(dx, dy, dz, dd, axis, base, height, radius, dt):
-    """Nearest positive hit of a capped cylinder with unit ``axis`` and bottom centre ``base`` (sensor frame)."""
+    """Nearest positive hit of a capped cylinder with unit ``axis`` and bottom centre ``base`` (sensor frame).
+
+    Written for float32 rays far from the sensor: the ray's squared distance from the axis comes from the
+    constant vector axis x w (exact in float64) instead of a difference of large squares."""
     w = -base                                   # origin relative to the bottom centre
     wa = float(w @ axis)
     ww = float(w @ w)
+    axw = np.cross(axis, w)
     da = dx * dt(axis[0]) + dy * dt(axis[1]) + dz * dt(axis[2])
     wd = dx * dt(w[0]) + dy * dt(w[1]) + dz * dt(w[2])
-    A = dd - da * da
-    B = dt(2.0) * (wd - dt(wa) * da)
-    C = ww - wa * wa - radius * radius
-    disc = B * B - dt(4.0 * C) * A
-    root = np.sqrt(np.maximum(disc, 0))
-    t_side = (-B - root) / (dt(2.0) * A) if C > 0 else (-B + root) / (dt(2.0) * A)
+    cross = dx * dt(axw[0]) + dy * dt(axw[1]) + dz * dt(axw[2])      # a·(w x d): perpendicular moment
+    A = dd - da * da                                                 # |d_perp|^2
+    t_c = (dt(wa) * da - wd) / A                                     # closest approach to the axis
+    half2 = (dt(radius * radius) - cross * cross / A) / A            # half chord squared
+    half = np.sqrt(np.maximum(half2, 0))
+    inside = ww - wa * wa <= radius * radius
+    t_side = t_c + half if inside else t_c - half
     axial = dt(wa) + t_side * da
-    t = np.where((disc >= 0) & (t_side > 0) & (axial >= 0) & (axial <= height), t_side, np.inf).astype(dx.dtype)
+    t = np.where((half2 >= 0) & (t_side > 0) & (axial >= 0) & (axial <= height), t_side, np.inf).astype(dx.dtype)
     for cap in (0.0, height):
         tc = dt(cap - wa) / da
-        rad2 = dt(ww) + dt(2.0) * tc * wd + tc * tc * dd - (dt(wa) + tc * da) ** 2
+        # squared distance from the axis at the cap hit: |w_perp + tc d_perp|^2, from the moment and the closest point
+        rad2 = cross * cross / A + (tc - t_c) ** 2 * A
         ok = (tc > 0) & (rad2 <= radius * radius) & (tc < t)
         t[ok] = tc[ok]
     return t

@@ -87,7 +87,7 @@ def street_drive(scene: Scene, frames: int | None = None, rate_hz: float = 10.0,
                  seed: int = 0, *, height: float = 1.73, lane_offset: float = -1.75, start_s: float = 0.0) -> Trajectory:
     """A car driving along a :func:`street_scene` centreline in the right lane at about ``speed`` m/s (a slow
     +-10 % speed variation, a lane offset that drifts +-0.3 m, pitch and roll of a few tenths of a degree, 1 cm
-    of bounce), LiDAR ``height`` metres above the ground, poses for the LiDAR ("body" frame) at ``rate_hz``.
+    of bounce, all fading out below 5 m/s), LiDAR ``height`` metres above the ground, poses for the LiDAR ("body" frame) at ``rate_hz``.
     ``frames=None`` drives the whole street. The speed is the real speed of the sensor along its path, so
     ``frames`` frames cover ``(frames - 1) / rate_hz * speed`` metres on average."""
     line = scene.meta.get("centerline")
@@ -132,9 +132,10 @@ def street_drive(scene: Scene, frames: int | None = None, rate_hz: float = 10.0,
     # Heading of the offset path: tangent * (1 - o kappa) + normal * o'.
     yaw = psi + np.arctan2(do, 1.0 - o * line.curvature(s))
     a = rng.uniform(0, 2 * np.pi, 4)
-    pitch = np.radians(0.3) * np.sin(2 * np.pi * 0.23 * t + a[0]) + np.radians(0.15) * np.sin(2 * np.pi * 0.61 * t + a[1])
-    roll = np.radians(0.3) * np.sin(2 * np.pi * 0.17 * t + a[2])
-    z = height + 0.01 * np.sin(2 * np.pi * 0.9 * t + a[3])
+    body = min(1.0, speed / 5.0)            # body motion fades out as the car slows down: a parked car is still
+    pitch = body * (np.radians(0.3) * np.sin(2 * np.pi * 0.23 * t + a[0]) + np.radians(0.15) * np.sin(2 * np.pi * 0.61 * t + a[1]))
+    roll = body * np.radians(0.3) * np.sin(2 * np.pi * 0.17 * t + a[2])
+    z = height + body * 0.01 * np.sin(2 * np.pi * 0.9 * t + a[3])
     pos = np.column_stack([p, z])
     return Trajectory(t, _poses(rpy_matrix(roll, pitch, yaw), pos), "body")
 
