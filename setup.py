@@ -59,6 +59,7 @@ setup(
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/config", sorted(glob.glob("config/*"))),
         ("share/" + PACKAGE + "/launch", sorted(glob.glob("launch/*.py"))),
+        ("share/" + PACKAGE + "/rviz", sorted(glob.glob("rviz/*.rviz"))),
     ],
     install_requires=["setuptools", "numpy", "scipy", "pyyaml"],
     zip_safe=False,

@@ -102,6 +102,7 @@ class LineOdomNode(Node):
         self._declare_and_load()
         s = self.settings
         self.processor = OdometryProcessor(self.config, s, logger=self.get_logger())
+        self.processor.diagnostic_name = f"{self.get_fully_qualified_name()}: odometry"
         self._log_parameters()
 
         if s.qos_reliable:

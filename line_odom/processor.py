@@ -204,6 +204,7 @@ class OdometryProcessor:
         self._last_stats: dict = {}
         self._window_start = dict(self.counters)
         self.sensor_frame = ""
+        self.diagnostic_name = "line_odom: odometry"  # the node sets "<fully qualified node name>: odometry"
         self._clear_state()
 
     # ------------------------------------------------------------------ construction helpers
@@ -437,7 +438,7 @@ class OdometryProcessor:
             since = {k: self.counters[k] - self._window_start.get(k, 0) for k in self.counters}
             self._window_start = dict(self.counters)
         status = DiagnosticStatus()
-        status.name = "line_odom: odometry"
+        status.name = self.diagnostic_name
         status.hardware_id = self.sensor_frame or self.settings.input
         problems = []
         if values.get("degenerate"):

@@ -1,0 +1,383 @@
+"""The node over real DDS, in its own process as `ros2 run` would start it (python -m line_odom.node): real KITTI
+clouds (unorganized and organized layouts) and TUM depth images in; Odometry, Path, TF and diagnostics out,
+checked against ground truth, frames, covariance and twist; reset, initial pose, extrinsic, QoS, sim time,
+dropping, malformed input and bad parameters."""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_srvs.srv import Trigger
+
+from node_harness import Harness, NodeProcess, pose_matrix, transform_matrix, use_large_message_profile
+from line_odom import convert, frames
+from line_odom.bags import kitti_rings
+from line_odom.datasets import kitti_sequence, tum_sequence
+from line_odom.metrics import relative_pose_errors
+
+use_large_message_profile()  # at collection: before any participant of this pytest process exists
+
+STARTUP_S = 90.0  # generous: a loaded 2-core machine, engine import, discovery
+FRAME_S = 90.0
+
+# Frame-to-frame error bounds through the node (mean translation m, mean rotation deg) at 1/36 on the KITTI
+# frames and 1/100 on TUM: the pipeline's own bounds (test_odometry_kitti.py, test_odometry_tum.py) with margin.
+KITTI_BOUNDS_1_36 = {"00": (0.30, 0.60), "07": (0.15, 0.60)}
+TUM_BOUNDS = (0.03, 2.0)
+
+
+# ------------------------------------------------------------------------------------------------ inputs
+
+def kitti_points(seq, i):
+    raw = seq.points(i)
+    pts = np.empty(len(raw), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("intensity", "f4"), ("ring", "u2")])
+    pts["x"], pts["y"], pts["z"], pts["intensity"] = raw.T
+    pts["ring"] = kitti_rings(raw)
+    return pts
+
+
+def kitti_unorganized(seq, i, stamp):
+    return convert.pointcloud2_from_array(kitti_points(seq, i), frame_id="velodyne", stamp=stamp)
+
+
+def kitti_organized(seq, i, stamp, width=2048):
+    """A range-image layout: row = ring, column = azimuth bin, NaN where the bin has no return; float64 xyz,
+    a different point_step and field order than the unorganized layout."""
+    pts = kitti_points(seq, i)
+    ring = pts["ring"].astype(int)
+    az = np.arctan2(pts["y"], pts["x"])
+    col = ((np.pi - az) / (2 * np.pi) * width).astype(int) % width
+    grid = np.zeros((ring.max() + 1, width), dtype=[("intensity", "f4"), ("x", "f8"), ("y", "f8"), ("z", "f8"),
+                                                      ("ring", "u2")])
+    for name in ("x", "y", "z", "intensity"):
+        grid[name] = np.nan
+    for name in ("x", "y", "z", "intensity", "ring"):
+        grid[name][ring, col] = pts[name]
+    return convert.pointcloud2_from_array(grid, frame_id="velodyne", stamp=stamp)
+
+
+def ns(stamp: float) -> int:
+    return convert.stamp_to_ns(convert.sec_to_stamp(stamp))
+
+
+# ------------------------------------------------------------------------------------------------ fixtures
+
+@pytest.fixture
+def run_node(ros_env):
+    """Start node processes and a harness; on teardown stop them (asserting a clean SIGINT exit)."""
+    started = []
+
+    def start(params, **kw):
+        node = NodeProcess(ros_env, params, **kw)
+        harness = Harness(node.namespace)
+        started.append((node, harness))
+        return node, harness
+
+    yield start
+    errors = []
+    for node, harness in started:
+        harness.close()
+        try:
+            node.stop()
+        except AssertionError as err:
+            errors.append(str(err))
+        finally:
+            node.kill()
+    assert not errors, "\n".join(errors)
+
+
+def publish_and_wait(harness, node, pub, msg, stamp, timeout=FRAME_S):
+    """Publish a frame and wait for its Odometry; republish once if a best-effort frame was lost."""
+    pub.publish(msg)
+    try:
+        return harness.wait_for(lambda: harness.odom_at(ns(stamp)), timeout / 2, f"odometry at {stamp}", node)
+    except AssertionError:
+        pub.publish(msg)
+        return harness.wait_for(lambda: harness.odom_at(ns(stamp)), timeout / 2, f"odometry at {stamp}", node)
+
+
+def check_covariances(odom):
+    for cov in (odom.pose.covariance, odom.twist.covariance):
+        C = np.asarray(cov).reshape(6, 6)
+        assert np.isfinite(C).all()
+        np.testing.assert_allclose(C, C.T, atol=1e-15)
+        assert np.linalg.eigvalsh(C).min() > 0, C
+
+
+def check_stream(harness, odoms, stamps, frame_ids=("odom", "base_link")):
+    """Frames, covariance, twist (consistent with the published poses), TF and Path of a run."""
+    poses = np.array([pose_matrix(o.pose.pose) for o in odoms])
+    for k, o in enumerate(odoms):
+        assert (o.header.frame_id, o.child_frame_id) == frame_ids
+        check_covariances(o)
+        tf = harness.wait_for(lambda: harness.tf_at(ns(stamps[k])), 30, f"/tf at {stamps[k]}")
+        assert (tf.header.frame_id, tf.child_frame_id) == frame_ids
+        np.testing.assert_allclose(transform_matrix(tf.transform), poses[k], atol=1e-9)
+        tw = o.twist.twist
+        twist = np.array([tw.linear.x, tw.linear.y, tw.linear.z, tw.angular.x, tw.angular.y, tw.angular.z])
+        if k == 0:
+            np.testing.assert_array_equal(twist, 0)
+        else:
+            dt = stamps[k] - stamps[k - 1]
+            expected = frames.log_se3(np.linalg.inv(poses[k - 1]) @ poses[k]) / dt
+            np.testing.assert_allclose(twist, expected, atol=1e-6)
+    path = harness.wait_for(lambda: [p for p in harness.paths if len(p.poses) == len(odoms)], 30, "the full path")[-1]
+    assert path.header.frame_id == frame_ids[0]
+    np.testing.assert_allclose([pose_matrix(p.pose) for p in path.poses], poses, atol=1e-9)
+    return poses
+
+
+# ------------------------------------------------------------------------------------------------ accuracy
+
+@pytest.mark.parametrize("layout, seq_name, frames_n", [("unorganized", "00", 10), ("organized", "07", 6)])
+def test_kitti_clouds_through_the_node(run_node, layout, seq_name, frames_n):
+    seq = kitti_sequence(seq_name, frames_n)
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6})
+    pub = h.publisher(PointCloud2, node.topic("points"))
+    h.wait_matched(pub, node, STARTUP_S)
+    stamps = [1000.0 + float(t) for t in seq.times]
+    make = kitti_unorganized if layout == "unorganized" else kitti_organized
+    odoms = [publish_and_wait(h, node, pub, make(seq, i, s), s) for i, s in enumerate(stamps)]
+    poses = check_stream(h, odoms, stamps)
+    np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-12)
+    gt = np.linalg.inv(seq.poses[0]) @ seq.poses
+    t_err, r_err = relative_pose_errors(poses, gt)
+    bound_t, bound_r = KITTI_BOUNDS_1_36[seq_name]
+    assert t_err.mean() < bound_t and r_err.mean() < bound_r, (t_err, r_err)
+    # twist against ground truth: forward speed of the car
+    gt_speed = np.linalg.norm(gt[-1][:3, 3] - gt[-2][:3, 3]) / (stamps[-1] - stamps[-2])
+    tw = odoms[-1].twist.twist.linear
+    assert abs(np.linalg.norm([tw.x, tw.y, tw.z]) - gt_speed) < 0.2 * gt_speed + 0.2
+    status, values = h.wait_for(lambda: h.diagnostics_values()[1] and h.diagnostics_values(), 30, "diagnostics")
+    assert int(values["frames_processed"]) == frames_n
+    assert values["solver"] and float(values["latency_ms_mean"]) > 0
+
+
+def test_tum_depth_images_through_the_node(run_node):
+    seq = tum_sequence(frames=30)
+    take = list(range(0, 30, 3))  # 10 Hz from the 30 Hz stream: motion large enough to measure
+    node, h = run_node({"preset": "tum_kinect", "downsample": 10})
+    pub_img = h.publisher(Image, node.topic("depth/image"))
+    pub_info = h.publisher(CameraInfo, node.topic("depth/camera_info"))
+    h.wait_matched(pub_img, node, STARTUP_S)
+    h.wait_for(lambda: pub_info.get_subscription_count() > 0, 30, "camera_info subscription", node)
+    odoms, stamps = [], []
+    for k, i in enumerate(take):
+        stamp = float(seq.stamps[i])
+        encoding = "16UC1" if k % 2 == 0 else "32FC1"  # both encodings in one run
+        img = convert.depth_to_image(seq.depth(i), encoding=encoding, frame_id="openni_depth_optical_frame",
+                                     stamp=stamp)
+        info = convert.camera_info_from_K(seq.K, 640, 480, frame_id="openni_depth_optical_frame", stamp=stamp)
+        pub_info.publish(info)
+        odoms.append(publish_and_wait(h, node, pub_img, img, stamp))
+        stamps.append(stamp)
+    poses = check_stream(h, odoms, stamps)
+    # the preset mounts the optical frame in a REP-103 base: compare the camera's own motion with ground truth
+    X = frames.pose_from_params([0, 0, 0, -np.pi / 2, 0, -np.pi / 2], "base_to_sensor")
+    camera = np.array([np.linalg.inv(X) @ T @ X for T in poses])
+    gt = seq.poses[take]
+    t_err, r_err = relative_pose_errors(camera, gt)
+    assert t_err.mean() < TUM_BOUNDS[0] and r_err.mean() < TUM_BOUNDS[1], (t_err, r_err)
+
+
+# ------------------------------------------------------------------------------------------------ frames
+
+def test_initial_pose_extrinsic_and_reset_service(run_node):
+    seq = kitti_sequence("00", 6)
+    init = [1.0, 2.0, 3.0, 0.0, 0.0, 0.5]
+    extrinsic = [0.5, -0.2, 1.8, 0.0, 0.0, 0.3]
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "initial_pose": init,
+                        "base_to_sensor": extrinsic, "odom_frame": "odom_test", "base_frame": "base_test"})
+    pub = h.publisher(PointCloud2, node.topic("points"))
+    client = h.node.create_client(Trigger, node.topic("line_odom/reset"))
+    h.wait_matched(pub, node, STARTUP_S)
+    T0 = frames.pose_from_params(init, "initial_pose")
+    X = frames.pose_from_params(extrinsic, "base_to_sensor")
+    gt = np.linalg.inv(seq.poses[0]) @ seq.poses
+    stamps = [500.0 + float(t) for t in seq.times]
+    poses = []
+    for i in range(3):
+        odom = publish_and_wait(h, node, pub, kitti_unorganized(seq, i, stamps[i]), stamps[i])
+        assert (odom.header.frame_id, odom.child_frame_id) == ("odom_test", "base_test")
+        poses.append(pose_matrix(odom.pose.pose))
+    np.testing.assert_allclose(poses[0], T0, atol=1e-9)
+    for i in (1, 2):
+        expected = T0 @ X @ gt[i] @ np.linalg.inv(X)
+        assert np.linalg.norm(poses[i][:3, 3] - expected[:3, 3]) < 0.25
+        # the extrinsic matters here: ignoring it would put the base ~0.3 m/m of travel off
+        wrong = T0 @ gt[i]
+        assert np.linalg.norm(wrong[:3, 3] - expected[:3, 3]) > 0.4
+
+    assert client.wait_for_service(timeout_sec=30)
+    future = client.call_async(Trigger.Request())
+    h.wait_for(lambda: future.done(), 30, "the reset service response", node)
+    assert future.result().success
+    odom = publish_and_wait(h, node, pub, kitti_unorganized(seq, 3, stamps[3]), stamps[3])
+    np.testing.assert_allclose(pose_matrix(odom.pose.pose), T0, atol=1e-9)  # back at initial_pose
+    odom = publish_and_wait(h, node, pub, kitti_unorganized(seq, 4, stamps[4]), stamps[4])
+    expected = T0 @ X @ (np.linalg.inv(gt[3]) @ gt[4]) @ np.linalg.inv(X)
+    assert np.linalg.norm(pose_matrix(odom.pose.pose)[:3, 3] - expected[:3, 3]) < 0.25
+    path = h.wait_for(lambda: [p for p in h.paths if p.header.stamp == odom.header.stamp], 30, "path")[-1]
+    assert len(path.poses) == 2  # the path restarts with the reset
+
+
+# ------------------------------------------------------------------------------------------------ QoS, time
+
+def test_best_effort_and_reliable_publishers(run_node):
+    seq = kitti_sequence("07", 4)
+    stamps = [10.0 + float(t) for t in seq.times]
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6})  # SensorDataQoS subscription
+    best_effort = h.publisher(PointCloud2, node.topic("points"), reliable=False)
+    reliable = h.publisher(PointCloud2, node.topic("points"), reliable=True)
+    h.wait_matched(best_effort, node, STARTUP_S)
+    h.wait_matched(reliable, node, STARTUP_S)
+    publish_and_wait(h, node, best_effort, kitti_unorganized(seq, 0, stamps[0]), stamps[0])
+    publish_and_wait(h, node, reliable, kitti_unorganized(seq, 1, stamps[1]), stamps[1])
+
+    node2, h2 = run_node({"preset": "kitti_hdl64", "downsample": 6, "qos.reliable": True})
+    reliable2 = h2.publisher(PointCloud2, node2.topic("points"), reliable=True)
+    best_effort2 = h2.publisher(PointCloud2, node2.topic("points"), reliable=False)
+    h2.wait_matched(reliable2, node2, STARTUP_S)
+    publish_and_wait(h2, node2, reliable2, kitti_unorganized(seq, 2, stamps[2]), stamps[2])
+    time.sleep(1.0)
+    assert best_effort2.get_subscription_count() == 0  # a reliable subscription does not match best effort
+
+
+def test_use_sim_time_follows_clock(run_node):
+    seq = kitti_sequence("07", 2)
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "use_sim_time": True,
+                        "diagnostics.period": 0.5})
+    pub = h.publisher(PointCloud2, node.topic("points"))
+    clock_pub = h.publisher(Clock, "/clock", reliable=True)
+    h.wait_matched(pub, node, STARTUP_S)
+    h.wait_for(lambda: clock_pub.get_subscription_count() > 0, 30, "the node's /clock subscription", node)
+    sim = {"t": 7000.0, "run": True}
+
+    def tick():
+        while sim["run"]:
+            sim["t"] += 0.1
+            clock_pub.publish(Clock(clock=convert.sec_to_stamp(sim["t"])))
+            time.sleep(0.05)
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    ticker.start()
+    try:
+        stamp = 7000.5
+        odom = publish_and_wait(h, node, pub, kitti_unorganized(seq, 0, stamp), stamp)
+        assert convert.stamp_to_ns(odom.header.stamp) == ns(stamp)
+        status, _ = h.wait_for(lambda: h.diagnostics_values()[0] is not None and h.diagnostics_values(), 60,
+                               "diagnostics on the sim clock", node)
+        with h.lock:
+            mine = [m for m in h.diagnostics if m.status and m.status[0].name.startswith(node.namespace)]
+        t = convert.stamp_to_sec(mine[-1].header.stamp)
+        assert 7000.0 <= t <= sim["t"] + 1e-6, t  # the sim clock, not the wall clock (~1.7e9 s)
+    finally:
+        sim["run"] = False
+        ticker.join()
+
+
+def test_newest_frame_wins_when_processing_falls_behind(run_node):
+    seq = kitti_sequence("00", 6)
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 1, "diagnostics.period": 0.5})
+    pub = h.publisher(PointCloud2, node.topic("points"), reliable=True, depth=10)
+    h.wait_matched(pub, node, STARTUP_S)
+    stamps = [20.0 + float(t) for t in seq.times]
+    msgs = [kitti_unorganized(seq, i, s) for i, s in enumerate(stamps)]
+    for m in msgs:  # a burst much faster than full-resolution processing
+        pub.publish(m)
+    h.wait_for(lambda: h.odom_at(ns(stamps[-1])), 3 * FRAME_S, "the newest frame's odometry", node)
+
+    def settled():
+        _, v = h.diagnostics_values()
+        return v and int(v["frames_received"]) == len(msgs) and (
+            int(v["frames_processed"]) + int(v["frames_dropped"]) == len(msgs)) and v
+    values = h.wait_for(settled, 60, "diagnostics counting every frame", node)
+    assert int(values["frames_dropped"]) >= 1
+    assert len(h.odom) == int(values["frames_processed"]) < len(msgs)
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+
+def _bad_clouds(seq, stamp):
+    no_x = kitti_unorganized(seq, 0, stamp)
+    no_x.fields = [f for f in no_x.fields if f.name != "x"]
+    small_step = kitti_unorganized(seq, 0, stamp)
+    small_step.point_step = 8
+    small_step.row_step = 8 * small_step.width
+    short = kitti_unorganized(seq, 0, stamp)
+    short.data = bytes(short.data)[: len(short.data) // 2]
+    empty = convert.pointcloud2_from_xyz(np.zeros((0, 3)), frame_id="velodyne", stamp=stamp)
+    all_nan = convert.pointcloud2_from_xyz(np.full((1000, 3), np.nan), frame_id="velodyne", stamp=stamp)
+    return [("no 'x' field", no_x), ("too small for field", small_step), ("shorter than", short),
+            ("empty cloud", empty), ("no finite point", all_nan)]
+
+
+def test_malformed_clouds_are_dropped_and_the_next_good_frame_processed(run_node):
+    seq = kitti_sequence("07", 6)
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6})
+    pub = h.publisher(PointCloud2, node.topic("points"), reliable=True)
+    h.wait_matched(pub, node, STARTUP_S)
+    stamp = 100.0
+    cases = _bad_clouds(seq, 99.0)
+    for k, (reason, bad) in enumerate(cases):
+        bad.header.stamp = convert.sec_to_stamp(stamp + 0.1 * k)
+        pub.publish(bad)
+        good_stamp = stamp + 0.1 * k + 0.05
+        publish_and_wait(h, node, pub, kitti_unorganized(seq, k, good_stamp), good_stamp)
+    _, values = h.wait_for(lambda: (lambda s, v: v and int(v["frames_malformed"]) == len(cases) and (s, v))(
+        *h.diagnostics_values()), 30, "diagnostics counting the malformed frames", node)
+    assert int(values["frames_processed"]) == len(cases)
+    log = node.output()
+    for reason, _ in cases:
+        assert reason in log, reason
+
+
+def test_malformed_depth_inputs(run_node):
+    seq = tum_sequence(frames=4)
+    node, h = run_node({"preset": "tum_kinect", "downsample": 10})
+    pub_img = h.publisher(Image, node.topic("depth/image"), reliable=True)
+    pub_info = h.publisher(CameraInfo, node.topic("depth/camera_info"), reliable=True)
+    h.wait_matched(pub_img, node, STARTUP_S)
+    h.wait_for(lambda: pub_info.get_subscription_count() > 0, 30, "camera_info subscription", node)
+    zero_f = convert.camera_info_from_K(np.diag([0.0, 0.0, 1.0]), 640, 480, stamp=float(seq.stamps[0]))
+    pub_info.publish(zero_f)
+    rgb = convert.depth_to_image(seq.depth(0), stamp=float(seq.stamps[0]))
+    rgb.encoding = "rgb8"
+    pub_img.publish(rgb)
+    good_info = convert.camera_info_from_K(seq.K, 640, 480)
+    for i in (1, 2):
+        stamp = float(seq.stamps[i])
+        good_info.header.stamp = convert.sec_to_stamp(stamp)
+        pub_info.publish(good_info)
+        publish_and_wait(h, node, pub_img, convert.depth_to_image(seq.depth(i), stamp=stamp), stamp)
+    pub_info.publish(zero_f)  # a bad CameraInfo later keeps the last good intrinsics
+    stamp = float(seq.stamps[3])
+    publish_and_wait(h, node, pub_img, convert.depth_to_image(seq.depth(3), stamp=stamp), stamp)
+    _, values = h.wait_for(lambda: (lambda s, v: v and int(v["frames_malformed"]) == 3 and (s, v))(
+        *h.diagnostics_values()), 30, "diagnostics counting the malformed inputs", node)
+    log = node.output()
+    assert "focal length must be > 0" in log and "unsupported depth encoding 'rgb8'" in log
+
+
+# ------------------------------------------------------------------------------------------------ parameters
+
+@pytest.mark.parametrize("params, message", [
+    ({"downsample": 0}, "downsample"),
+    ({"input": "camera"}, "input"),
+    ({"ransac.solver": "9L"}, "ransac.solver"),
+    ({"preset": "no_such_sensor"}, "preset"),
+    ({"initial_pose": [1.0, 2.0]}, "initial_pose"),
+])
+def test_bad_parameter_exits_with_a_clear_error(ros_env, params, message):
+    node = NodeProcess(ros_env, params)
+    try:
+        code = node.wait_exit(STARTUP_S)
+    finally:
+        node.kill()
+    out = node.output()
+    assert code == 2, out
+    assert "bad parameter" in out and message in out and "Traceback" not in out, out
