@@ -7,7 +7,6 @@
 #include "solvers/solve_7l.hpp"
 
 #include <Eigen/Cholesky>
-#include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
@@ -228,9 +227,9 @@ int solve_7l(const std::array<Segment, 7>& segments_a, const std::array<Segment,
   residuals(lines, T, &r, &J);
   st.residual = r.cwiseAbs().maxCoeff();
   if (!st.converged || !(st.residual <= options.max_residual)) return 0;
-  const Eigen::SelfAdjointEigenSolver<Mat6> eig(J.transpose() * J, Eigen::EigenvaluesOnly);
-  const double lo = eig.eigenvalues()(0), hi = eig.eigenvalues()(5);
-  if (!(hi > 0.0) || !(lo > kMinSingularRatio * kMinSingularRatio * hi)) return 0;
+  const Eigen::JacobiSVD<Mat76> jacobian_svd(J);  // singular values only, fixed size: no allocation
+  const double hi = jacobian_svd.singularValues()(0), lo = jacobian_svd.singularValues()(5);
+  if (!(hi > 0.0) || !(lo > kMinSingularRatio * hi)) return 0;
   *solution = T;
   return 1;
 }
