@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from line_odom import sim
-from line_odom.sim.scene import RayGrid, cast
+from line_odom.sim.scene import RayGrid, cast, rotate
 
 
 def _pose(x=0.0, y=0.0, z=0.0, roll=0.0, pitch=0.0, yaw=0.0):
@@ -14,7 +14,7 @@ def _pose(x=0.0, y=0.0, z=0.0, roll=0.0, pitch=0.0, yaw=0.0):
 
 
 def _world(points, T):
-    return np.asarray(points, dtype=float) @ T[:3, :3].T + T[:3, 3]
+    return rotate(np.asarray(points, dtype=float), T[:3, :3]) + T[:3, 3]
 
 
 @pytest.fixture(scope="module")
@@ -128,12 +128,28 @@ def test_box_and_cylinder_distances_analytic():
     assert scan.range[0, fwd] == pytest.approx(t, abs=1e-5)
     assert scene.kinds[scan.label[0, fwd]] == "pole"
     # The yawed box: every hit lies on its surface and the ray straight down -y meets the corner-facing edge.
-    hits = scan.label[0] == 1
+    hits = scan.label[0] == scene.kinds.index("box")
     assert hits.any()
     assert np.abs(scene.distance(scan.organized[0, hits])).max() < 1e-4
     right = np.argmin(np.abs(lidar.azimuths + np.pi / 2))
     # Box footprint rotated 45 deg: the ray along -y meets its local face y' = +1 at x' = 1, i.e. at y = -8 + sqrt 2.
     assert scan.range[0, right] == pytest.approx(8.0 - np.sqrt(2.0), abs=0.01)
+    # True normals: horizontal on the pole pointing away from its axis; on the box one of the yawed faces' normals,
+    # facing the sensor; intensity = albedo * |cos incidence| within [0, 1].
+    lab = scan.label[scan.ring, scan.column]
+    n = scan.normals.astype(float)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
+    pole = lab == scene.kinds.index("pole")
+    radial = scan.points[pole, :2] - [10.0, 0.0]
+    np.testing.assert_allclose(n[pole, :2], radial / np.linalg.norm(radial, axis=1, keepdims=True), atol=1e-3)
+    face = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4)])
+    box = lab == scene.kinds.index("box")
+    along = np.abs(n[box, :2] @ face)
+    assert np.all((np.abs(along - 1) < 1e-6) | (along < 1e-6)) and np.all(n[box, 2] == 0)
+    assert np.all(np.sum(n * scan.points, axis=1) < 0)
+    cos = np.abs(np.sum(n * scan.points, axis=1)) / np.linalg.norm(scan.points, axis=1)
+    np.testing.assert_allclose(scan.intensity, scene.albedo[lab] * cos, atol=1e-5)
+    assert scan.intensity.dtype == np.float32 and scan.intensity.shape == (len(scan),)
 
 
 def test_windowed_cast_equals_brute_force(street, drive):

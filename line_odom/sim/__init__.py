@@ -32,7 +32,8 @@ Sensors (``sensors.py``)
             column c at azimuth ``pi - (c + 0.5) * 2pi / W`` (column 0 looks backwards, x forward is column W/2);
         ``range`` (H, W) float32 (NaN none); ``label`` (H, W) int32 id of the primitive hit (-1 none);
         ``points`` (N, 3) float32 valid returns row by row (= ``xyz``); ``ring`` (N,) uint16 = row;
-        ``column`` (N,) int32; ``stamp``.
+        ``column`` (N,) int32; ``stamp``; computed on first use: ``intensity`` (N,) float32 in [0, 1] (albedo times
+        |cos incidence|) and ``normals`` (N, 3) true surface normals in the sensor frame.
     ``lidar.elevations`` / ``lidar.azimuths`` (radians, row / column order), ``lidar.shape``.
     Noise: Gaussian along the ray, ``noise_std`` metres; ``dropout`` drops that fraction of returns. The noise
     generator is seeded once per sensor: the same seed and scan sequence give identical data (``reseed()``).
@@ -52,7 +53,8 @@ Scenes (``scenes.py``; ``scene.py`` has ``Scene``, ``SceneBuilder`` and the ray 
     Degenerate: ``empty_scene()``, ``ground_scene()``, ``corridor_scene(width=3, height=3)`` (four infinite
     planes along x), ``wall_scene(distance=5)`` (one wall, face y = distance, no ground), ``far_scene(
     min_distance=200)`` (buildings all beyond range, no ground).
-    ``scene.distance(points)``: distance from world points to the nearest surface; ``scene.kinds[label]``.
+    ``scene.distance(points)``: distance from world points to the nearest surface; ``scene.normals(points,
+    labels)``; ``scene.kinds[label]`` names what a label id is ("ground", "building", "car", "pole", ...).
     Build your own: ``SceneBuilder().add_plane(n, d).add_box(center, size, yaw).add_cylinder(x, y, z0, z1, r)
     .build(name)``.
 

@@ -24,6 +24,18 @@ _BOX_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
                        if np.count_nonzero(_CORNER_SIGNS[i] != _CORNER_SIGNS[j]) == 1])
 
 
+# Diffuse reflectivity by primitive kind (LiDAR intensity = albedo * |cos incidence|).
+_ALBEDO = {"ground": 0.2, "floor": 0.3, "kerb": 0.35, "building": 0.5, "car": 0.75, "pole": 0.6, "tree": 0.3,
+           "room": 0.6, "wall": 0.55, "ceiling": 0.7}
+
+
+def rotate(points: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``points @ R.T`` for (N, 3) points, written out: a BLAS matmul of an (N, 3) by (3, 3) array is slow (and
+    threads badly on a loaded machine)."""
+    p = np.asarray(points)
+    return p[:, 0:1] * R[:, 0] + p[:, 1:2] * R[:, 1] + p[:, 2:3] * R[:, 2]
+
+
 def yaw_matrix(yaw: float | np.ndarray) -> np.ndarray:
     """Rotation(s) about z: (3, 3) for a scalar yaw, (N, 3, 3) for an array."""
     yaw = np.asarray(yaw, dtype=float)
@@ -107,6 +119,10 @@ class Scene:
         object.__setattr__(self, "bound_R", np.concatenate([box_R, np.broadcast_to(np.eye(3), (len(cyl_c), 3, 3))])
                            .reshape(-1, 3, 3))
         object.__setattr__(self, "bound_radius", np.linalg.norm(self.bound_half, axis=1))
+        # Diffuse reflectivity per primitive: by kind, varied deterministically per primitive (golden-ratio hash).
+        base = np.array([_ALBEDO.get(k, 0.5) for k in self.kinds], dtype=float).reshape(-1)
+        vary = (np.arange(len(base)) * 0.6180339887498949) % 1.0
+        object.__setattr__(self, "albedo", np.clip(base * (0.8 + 0.4 * vary), 0.0, 1.0))
 
     @property
     def num_planes(self) -> int:
@@ -123,14 +139,55 @@ class Scene:
     def __len__(self) -> int:
         return self.num_planes + self.num_boxes + self.num_cylinders
 
+    def normals(self, points, labels) -> np.ndarray:
+        """Outward unit surface normals (N, 3) at world ``points`` (N, 3) lying on the primitives ``labels`` (N,)
+        (ids as in label images; -1 gives a zero vector)."""
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        lab = np.asarray(labels).reshape(-1)
+        if len(lab) != len(p):
+            raise ValueError(f"labels must have one id per point: {len(lab)} ids for {len(p)} points")
+        out = np.zeros_like(p)
+        P, B = self.num_planes, self.num_boxes
+        m = (lab >= 0) & (lab < P)
+        out[m] = self.plane_n[lab[m]]
+        m = (lab >= P) & (lab < P + B)
+        if m.any():
+            i = lab[m] - P
+            c, s = np.cos(self.box_yaw[i]), np.sin(self.box_yaw[i])
+            d = p[m] - self.box_center[i]
+            local = np.column_stack([c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0], d[:, 2]])
+            axis = np.argmin(np.abs(np.abs(local) - self.box_half[i]), axis=1)
+            sign = np.sign(local[np.arange(len(i)), axis])
+            sign[sign == 0] = 1.0
+            n = np.zeros((len(i), 3))
+            a0, a1, a2 = axis == 0, axis == 1, axis == 2
+            n[a0, 0], n[a0, 1] = c[a0] * sign[a0], s[a0] * sign[a0]
+            n[a1, 0], n[a1, 1] = -s[a1] * sign[a1], c[a1] * sign[a1]
+            n[a2, 2] = sign[a2]
+            out[m] = n
+        m = lab >= P + B
+        if m.any():
+            i = lab[m] - P - B
+            radial = p[m, :2] - self.cyl_xy[i]
+            rho = np.linalg.norm(radial, axis=1)
+            gaps = np.column_stack([np.abs(rho - self.cyl_radius[i]), np.abs(p[m, 2] - self.cyl_z[i, 0]),
+                                    np.abs(p[m, 2] - self.cyl_z[i, 1])])
+            face = np.argmin(gaps, axis=1)
+            n = np.zeros((len(i), 3))
+            n[:, :2] = radial / np.maximum(rho, 1e-12)[:, None]
+            n[face == 1] = (0.0, 0.0, -1.0)
+            n[face == 2] = (0.0, 0.0, 1.0)
+            out[m] = n
+        return out
+
     def distance(self, points) -> np.ndarray:
         """Unsigned distance (N,) from world points (N, 3) to the nearest primitive surface (inf if none)."""
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         best = np.full(len(p), np.inf)
         for n, d in zip(self.plane_n, self.plane_d):
-            best = np.minimum(best, np.abs(p @ n + d))
+            best = np.minimum(best, np.abs(p[:, 0] * n[0] + p[:, 1] * n[1] + p[:, 2] * n[2] + d))
         for c, h, R in zip(self.box_center, self.box_half, self.box_R):
-            q = np.abs((p - c) @ R) - h
+            q = np.abs(rotate(p - c, R.T)) - h
             outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
             inside = np.minimum(q.max(axis=1), 0.0)
             best = np.minimum(best, np.abs(outside + inside))
@@ -201,7 +258,7 @@ def _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_cul
     if ids.size == 0:
         return
     R_sb = np.einsum("ji,kjl->kil", R_ws, scene.bound_R[ids])          # R_ws^T R_b
-    c_s = c_rel[ids] @ R_ws                                               # R_ws^T (c - t)
+    c_s = rotate(c_rel[ids], R_ws.T)                                      # R_ws^T (c - t)
     half = scene.bound_half[ids]
     corners = c_s[:, None, :] + np.einsum("kij,knj->kni", R_sb, _CORNER_SIGNS[None] * half[:, None, :])
     origin_local = -np.einsum("kji,kj->ki", R_sb, c_s)                   # R_sb^T (0 - c_s)

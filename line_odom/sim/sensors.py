@@ -9,10 +9,11 @@ Depth camera: optical frame z forward, x right, y down; pixel (u, v) sees direct
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
-from line_odom.sim.scene import _BOX_EDGES, RayGrid, Scene, cast
+from line_odom.sim.scene import _BOX_EDGES, RayGrid, Scene, cast, rotate
 
 
 def hdl64_elevations_deg() -> np.ndarray:
@@ -78,11 +79,13 @@ class _SphericalGrid(RayGrid):
         return out
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(repr=False)
 class LidarScan:
     """One LiDAR sweep. ``organized`` (H, W, 3) float32 with NaN for no return; ``range`` (H, W) float32 (NaN for
     none); ``label`` (H, W) int32 primitive id of the surface hit (-1 none); ``points`` (N, 3) float32 and ``ring``
-    (N,) uint16 (= row), ``column`` (N,) the valid returns in row-major order (ring by ring)."""
+    (N,) uint16 (= row), ``column`` (N,) the valid returns in row-major order (ring by ring); ``intensity`` (N,)
+    float32 in [0, 1] (computed on first use): the surface's albedo times |cos| of the incidence angle;
+    ``normals`` (N, 3) the true surface normals in the sensor frame (computed on first use)."""
 
     organized: np.ndarray
     range: np.ndarray
@@ -91,6 +94,12 @@ class LidarScan:
     ring: np.ndarray
     column: np.ndarray
     stamp: float = 0.0
+    scene: Scene | None = None
+    pose: np.ndarray | None = None
+    directions: tuple | None = None
+
+    def __repr__(self) -> str:
+        return f"LidarScan(shape={self.range.shape}, points={len(self.points)}, stamp={self.stamp})"
 
     @property
     def xyz(self) -> np.ndarray:
@@ -98,6 +107,24 @@ class LidarScan:
 
     def __len__(self) -> int:
         return len(self.points)
+
+    @functools.cached_property
+    def normals(self) -> np.ndarray:
+        if self.scene is None:
+            raise ValueError("normals need the scene and pose the scan was taken from")
+        R, t = self.pose[:3, :3], self.pose[:3, 3]
+        hit = self.label[self.ring, self.column]
+        return rotate(self.scene.normals(rotate(self.points, R) + t, hit), R.T).astype(np.float32)
+
+    @functools.cached_property
+    def intensity(self) -> np.ndarray:
+        if len(self.points) == 0:
+            return np.zeros(0, np.float32)
+        dx, dy, dz = self.directions
+        r, c = self.ring, self.column
+        n = self.normals
+        cos = np.abs(n[:, 0] * dx[r, c] + n[:, 1] * dy[r, c] + n[:, 2] * dz[r, c])
+        return (self.scene.albedo[self.label[r, c]] * cos).astype(np.float32)
 
 
 class Lidar:
@@ -184,7 +211,8 @@ class Lidar:
         organized = np.stack([g.dx * rng_img, g.dy * rng_img, g.dz * rng_img], axis=-1).astype(np.float32)
         rows, cols = np.nonzero(valid)
         return LidarScan(organized=organized, range=rng_img, label=label, points=organized[rows, cols],
-                         ring=rows.astype(np.uint16), column=cols.astype(np.int32), stamp=float(stamp))
+                         ring=rows.astype(np.uint16), column=cols.astype(np.int32), stamp=float(stamp), scene=scene,
+                         pose=np.array(T_world_sensor, dtype=float), directions=(g.dx, g.dy, g.dz))
 
 
 class _PinholeGrid(RayGrid):
