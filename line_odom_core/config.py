@@ -43,6 +43,48 @@ _ENTRIES: list[ConfigEntry] = [
                 -90.0, 90.0),
     ConfigEntry("sensor.min_range", float, 0.0, "closer points are holes (m; depth cameras: depth z)", 0.0, 1e6),
     ConfigEntry("sensor.max_range", float, 1e9, "farther points are holes (m)", 0.0, 1e9),
+    # --- line fitting on rows (H-lines) and columns (V-lines), paper §6.2 ---
+    ConfigEntry("lines.min_points_h", int, 5, "inlier points an H-line (row) needs", 2, 100000),
+    ConfigEntry("lines.min_points_v", int, 3, "inlier points a V-line (column) needs (few rows when "
+                "downsampled)", 2, 100000),
+    ConfigEntry("lines.min_length", float, 0.3, "shortest line (m) between its end points", 0.0, 1000.0),
+    ConfigEntry("lines.split_distance", float, 0.06, "largest point-to-line distance inside one line (m at "
+                "range 0; grows with range)", 1e-5, 10.0),
+    ConfigEntry("lines.max_rms", float, 0.03, "largest rms of a line fit (m at range 0; grows with range)",
+                1e-5, 10.0),
+    ConfigEntry("lines.threshold_per_m", float, 0.01, "line thresholds scale by 1 + a r + b r^2: a (1/m)",
+                0.0, 10.0),
+    ConfigEntry("lines.threshold_per_m2", float, 0.0, "line thresholds scale by 1 + a r + b r^2: b (1/m^2)",
+                0.0, 100.0),
+    ConfigEntry("lines.max_gap", int, 2, "missing cells bridged inside one line", 0, 1000),
+    ConfigEntry("lines.min_incidence_deg", float, 4.0, "steps closer than this to the viewing ray are depth "
+                "jumps (deg)", 0.0, 90.0),
+    ConfigEntry("lines.max_outliers", int, 2, "stray points skipped between two collinear pieces", 0, 1000),
+    # --- line normals from H/V crossings and their 3 clusters, paper §6.2-6.3 ---
+    ConfigEntry("normals.min_crossing_angle_deg", float, 25.0, "flatter H/V crossings give no normal (deg)",
+                0.0, 90.0),
+    ConfigEntry("normals.max_deviation_deg", float, 15.0, "crossings farther than this from a line's mean "
+                "normal are outliers (deg)", 0.0, 90.0),
+    ConfigEntry("normals.min_crossings", int, 1, "agreeing crossings a line needs for a normal", 1, 100000),
+    ConfigEntry("normals.min_agreement", float, 0.5, "fraction of a line's crossings that must agree", 0.0, 1.0),
+    ConfigEntry("normals.vote_angle_deg", float, 10.0, "radius of a cluster-direction vote (deg)", 0.1, 90.0),
+    ConfigEntry("normals.min_separation_deg", float, 45.0, "least angle between cluster directions (deg)",
+                0.0, 90.0),
+    ConfigEntry("normals.max_cluster_angle_deg", float, 90.0, "normals farther than this from every direction "
+                "stay unclustered (deg)", 0.0, 90.0),
+    ConfigEntry("normals.min_cluster_fraction", float, 0.02, "votes a direction needs, as a fraction of all "
+                "normals", 0.0, 1.0),
+    # --- plane fitting, paper §6.2 ---
+    ConfigEntry("planes.enabled", bool, True, "fit planes (needed by the 3L1P and 1L2P solvers)", None, None),
+    ConfigEntry("planes.max_distance", float, 0.10, "line end points within this of the plane join it (m at "
+                "range 0)", 1e-5, 10.0),
+    ConfigEntry("planes.max_normal_angle_deg", float, 10.0, "line normal vs plane normal (deg)", 0.0, 90.0),
+    ConfigEntry("planes.min_points", int, 30, "range-image points a plane needs", 3, 10000000),
+    ConfigEntry("planes.min_lines", int, 3, "H- and V-lines a plane needs", 2, 100000),
+    ConfigEntry("planes.min_extent", float, 1.0, "shorter side of the plane's equal-moment rectangle (m)",
+                0.0, 1000.0),
+    ConfigEntry("planes.max_rms", float, 0.06, "point-to-plane rms (m)", 1e-5, 10.0),
+    ConfigEntry("planes.max_planes", int, 20, "keep the largest this many planes", 0, 10000),
     # --- registration (paper §6.3) ---
     ConfigEntry("candidates.max_distance", float, 2.0, "line pairs whose segments come within this distance (m) "
                 "under the motion guess are candidate intersections (paper: 2 m on KITTI)", 1e-3, 100.0),
