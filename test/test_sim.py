@@ -397,3 +397,44 @@ def test_bad_sensor_and_pose_arguments():
         sim.Lidar.vlp16().scan(sim.ground_scene(), np.eye(3))
     with pytest.raises(ValueError, match="T_world_sensor"):
         sim.Lidar.vlp16().scan(sim.ground_scene(), np.full((4, 4), np.nan))
+    with pytest.raises(ValueError, match="add_box"):
+        sim.SceneBuilder().add_box([0, np.nan, 0], [1, 1, 1])
+    with pytest.raises(ValueError, match="add_cylinder"):
+        sim.SceneBuilder().add_cylinder(0, 0, 1, 0, 0.1)
+    with pytest.raises(ValueError, match="add_plane"):
+        sim.SceneBuilder().add_plane([0, 0, 0], 1.0)
+
+
+# --- export to dataset layouts ------------------------------------------------------------------------------------
+
+def test_write_kitti_reads_back_with_the_dataset_reader(tmp_path):
+    from line_odom.datasets import KittiSequence
+
+    run = sim.make("street", frames=3, seed=2, sensor="vlp16")
+    sim.write_kitti(run, tmp_path / "seq")
+    seq = KittiSequence.open(tmp_path / "seq")
+    frames = list(run)
+    assert len(seq) == 3
+    np.testing.assert_allclose(seq.times, [f.stamp for f in frames])
+    T0_inv = np.linalg.inv(frames[0].pose)
+    for i, f in enumerate(frames):
+        pts = seq.points(i)
+        np.testing.assert_array_equal(pts[:, :3], f.data.points)
+        np.testing.assert_array_equal(pts[:, 3], f.data.intensity)
+        np.testing.assert_allclose(seq.poses[i], T0_inv @ f.pose, atol=1e-8)
+    with pytest.raises(ValueError, match="LiDAR"):
+        sim.write_kitti(sim.make("room", frames=1), tmp_path / "bad")
+
+
+def test_write_tum_reads_back_with_the_dataset_reader(tmp_path):
+    from line_odom.datasets import TumSequence
+
+    run = sim.make("room", frames=4, seed=2, sensor=sim.DepthCamera.kinect())
+    sim.write_tum(run, tmp_path / "tum")
+    seq = TumSequence.open(tmp_path / "tum", camera="fr1")
+    frames = list(run)
+    np.testing.assert_allclose(seq.K, run.sensor.K)
+    assert len(seq) == 4 and np.all(seq.pose_valid)
+    for i, f in enumerate(frames):
+        np.testing.assert_allclose(seq.depth(i), f.data, atol=0.5 / 5000 + 1e-6)
+        np.testing.assert_allclose(seq.poses[i], f.pose, atol=1e-6)

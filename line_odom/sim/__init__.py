@@ -75,7 +75,18 @@ Runs (``runner.py``)
     ``speed``, default 1 m/s). ``sensor``: a Lidar/DepthCamera or one of "hdl64", "vlp16", "os128", "kinect",
     "depth"; ``pose`` is always that of the sensor frame actually rendered (optical for cameras). ``data`` is a
     ``LidarScan`` for LiDARs and a depth image for cameras.
+
+Export (``export.py``)
+    ``write_kitti(run, out_dir, Tr=None)`` (velodyne/*.bin with intensity, times.txt, calib.txt, poses.txt) and
+    ``write_tum(run, out_dir)`` (16-bit depth PNGs, depth.txt, groundtruth.txt, intrinsics.txt): the readers in
+    ``line_odom.datasets`` and peer tools read them unchanged (``DepthCamera.kinect()`` has the fr1 intrinsics).
+
+Degenerate inputs for reliability tests (issue 7)
+    empty space ``simulate("empty")``; only a ground plane ``"ground"``; long featureless corridor ``"corridor"``;
+    all points beyond range ``"far"``; a single wall ``"wall"``; heavy noise ``noise_std=0.5`` (or ``dropout``);
+    a frame identical to the previous ``speed=0`` with ``noise_std=0`` (or feed the same frame twice).
 """
+from line_odom.sim.export import write_kitti, write_tum
 from line_odom.sim.runner import Simulation, SimFrame, make, simulate
 from line_odom.sim.scene import Scene, SceneBuilder, cast
 from line_odom.sim.scenes import (Centerline, corridor_scene, empty_scene, far_scene, ground_scene, room_scene,
@@ -88,5 +99,5 @@ __all__ = [
     "Scene", "SceneBuilder", "cast", "Centerline", "street_scene", "room_scene", "empty_scene", "ground_scene",
     "corridor_scene", "wall_scene", "far_scene", "Lidar", "LidarScan", "DepthCamera", "hdl64_elevations_deg",
     "Trajectory", "T_BODY_OPTICAL", "street_drive", "straight_drive", "handheld_path", "look_at", "rpy_matrix",
-    "Simulation", "SimFrame", "make", "simulate",
+    "Simulation", "SimFrame", "make", "simulate", "write_kitti", "write_tum",
 ]

@@ -57,8 +57,8 @@ class SceneBuilder:
     def add_plane(self, normal, delta: float, kind: str = "plane") -> "SceneBuilder":
         n = np.asarray(normal, dtype=float).reshape(3)
         norm = np.linalg.norm(n)
-        if not norm > 0:
-            raise ValueError(f"add_plane: normal must be a non-zero 3-vector, got {normal!r}")
+        if not (norm > 0 and np.isfinite(norm) and np.isfinite(delta)):
+            raise ValueError(f"add_plane: normal must be a finite non-zero 3-vector and delta finite, got {normal!r}, {delta!r}")
         self._planes.append((n / norm, float(delta) / norm, kind))
         return self
 
@@ -66,15 +66,17 @@ class SceneBuilder:
         """``size`` is the full extent (length along the yawed x, width along y, height along z)."""
         c = np.asarray(center, dtype=float).reshape(3)
         s = np.asarray(size, dtype=float).reshape(3)
-        if not np.all(s > 0):
-            raise ValueError(f"add_box: size must be three positive extents, got {size!r}")
+        if not np.all(s > 0) or not np.all(np.isfinite(np.r_[c, s, yaw])):
+            raise ValueError(f"add_box: need a finite center and yaw and three positive finite extents, "
+                             f"got center={center!r}, size={size!r}, yaw={yaw!r}")
         self._boxes.append((c, s / 2.0, float(yaw), kind))
         return self
 
     def add_cylinder(self, x: float, y: float, z0: float, z1: float, radius: float,
                      kind: str = "cylinder") -> "SceneBuilder":
-        if not (radius > 0 and z1 > z0):
-            raise ValueError(f"add_cylinder: need radius > 0 and z1 > z0, got radius={radius}, z0={z0}, z1={z1}")
+        if not (radius > 0 and z1 > z0) or not np.all(np.isfinite([x, y, z0, z1, radius])):
+            raise ValueError(f"add_cylinder: need finite values, radius > 0 and z1 > z0, got x={x}, y={y}, radius={radius}, "
+                             f"z0={z0}, z1={z1}")
         self._cylinders.append((float(x), float(y), float(z0), float(z1), float(radius), kind))
         return self
 
