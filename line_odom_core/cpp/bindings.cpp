@@ -232,6 +232,163 @@ py::dict benchmark_solver(const std::string& solver, int instances, int repetiti
 
 }  // namespace solver_bindings
 
+// ---- odometry pipeline helpers (issue 4, registration) ----
+#include <memory>
+#include <optional>
+#include <variant>
+
+#include "odometry.hpp"
+
+namespace odometry_bindings {
+
+line_odom::SettingValue to_setting(const std::string& name, const py::handle& value) {
+  if (py::isinstance<py::bool_>(value)) return value.cast<bool>();
+  if (py::isinstance<py::int_>(value)) return value.cast<std::int64_t>();
+  if (py::isinstance<py::float_>(value)) return value.cast<double>();
+  if (py::isinstance<py::str>(value)) return value.cast<std::string>();
+  throw py::value_error(name + ": expected a bool, int, float or str, got " +
+                        std::string(py::str(py::type::of(value).attr("__name__"))));
+}
+
+py::dict settings_dict(const line_odom::OdometryConfig& config) {
+  py::dict d;
+  for (const auto& [name, value] : line_odom::config_settings(config))
+    d[py::str(name)] = std::visit([](const auto& x) -> py::object { return py::cast(x); }, value);
+  return d;
+}
+
+py::dict stats_dict(const line_odom::FrameStats& s) {
+  py::dict ms;
+  ms["organize"] = s.ms.organize;
+  ms["downsample"] = s.ms.downsample;
+  ms["features"] = s.ms.features;
+  ms["lines"] = s.ms.lines;
+  ms["normals"] = s.ms.normals;
+  ms["planes"] = s.ms.planes;
+  ms["candidates"] = s.ms.candidates;
+  ms["ransac"] = s.ms.ransac;
+  ms["total"] = s.ms.total;
+  py::dict d;
+  d["solver"] = s.solver;
+  d["points"] = s.points;
+  d["h_lines"] = s.h_lines;
+  d["v_lines"] = s.v_lines;
+  d["planes"] = s.planes;
+  d["candidates"] = s.candidates;
+  d["plane_candidates"] = s.plane_candidates;
+  d["inliers"] = s.inliers;
+  d["plane_inliers"] = s.plane_inliers;
+  d["inlier_weight"] = s.inlier_weight;
+  d["residual_rms"] = s.residual_rms;
+  d["iterations"] = s.iterations;
+  d["passes"] = s.passes;
+  d["registered"] = s.registered;
+  d["degenerate"] = s.degenerate;
+  d["failure"] = s.failure;
+  d["ms"] = ms;
+  return d;
+}
+
+// (N, k >= 3) or (H, W, k >= 3) float32/float64 C-contiguous points.
+void check_points(const py::array& xyz, int ndim, const char* what) {
+  if (xyz.ndim() != ndim || xyz.shape(ndim - 1) < 3) throw py::value_error(std::string("xyz: expected ") + what);
+  if (!(xyz.flags() & py::array::c_style)) throw py::value_error("xyz: expected a C-contiguous array");
+  if (!py::isinstance<py::array_t<float>>(xyz) && !py::isinstance<py::array_t<double>>(xyz))
+    throw py::value_error("xyz: expected float32 or float64 values");
+}
+
+const std::int32_t* ring_pointer(const std::optional<py::array_t<std::int32_t>>& ring, std::size_t n) {
+  if (!ring) return nullptr;
+  if (ring->ndim() != 1 || static_cast<std::size_t>(ring->shape(0)) != n)
+    throw py::value_error("ring: expected one int32 beam index per point");
+  return ring->data();
+}
+
+std::unique_ptr<line_odom::Odometry> make_odometry(const py::dict& settings) {
+  line_odom::OdometryConfig config;
+  for (const auto& item : settings) {
+    const std::string name = py::str(item.first);
+    const std::string error = line_odom::apply_setting(&config, name, to_setting(name, item.second));
+    if (!error.empty()) throw py::value_error(name + ": " + error);
+  }
+  try {
+    return std::make_unique<line_odom::Odometry>(config);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
+  }
+}
+
+line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& xyz, double stamp,
+                                       const std::optional<py::array_t<std::int32_t>>& ring) {
+  check_points(xyz, 2, "an (N, 3) array of points");
+  const std::size_t n = static_cast<std::size_t>(xyz.shape(0)), stride = static_cast<std::size_t>(xyz.shape(1));
+  const std::int32_t* ring_ptr = ring_pointer(ring, n);
+  const bool is_float = py::isinstance<py::array_t<float>>(xyz);
+  const void* data = xyz.data();
+  py::gil_scoped_release release;
+  try {
+    return is_float ? o.register_points(static_cast<const float*>(data), n, stride, ring_ptr, stamp)
+                    : o.register_points(static_cast<const double*>(data), n, stride, ring_ptr, stamp);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
+  }
+}
+
+line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::array& xyz, double stamp) {
+  check_points(xyz, 3, "an (H, W, 3) organized point array");
+  const int rows = static_cast<int>(xyz.shape(0)), cols = static_cast<int>(xyz.shape(1));
+  const std::size_t stride = static_cast<std::size_t>(xyz.shape(2));
+  const bool is_float = py::isinstance<py::array_t<float>>(xyz);
+  const void* data = xyz.data();
+  py::gil_scoped_release release;
+  try {
+    return is_float ? o.register_organized(static_cast<const float*>(data), rows, cols, stride, stamp)
+                    : o.register_organized(static_cast<const double*>(data), rows, cols, stride, stamp);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
+  }
+}
+
+line_odom::FrameResult register_depth(line_odom::Odometry& o,
+                                      const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
+                                      const line_odom::Mat3& K, double stamp) {
+  if (depth.ndim() != 2) throw py::value_error("depth: expected an (H, W) depth image in metres");
+  const int rows = static_cast<int>(depth.shape(0)), cols = static_cast<int>(depth.shape(1));
+  const float* data = depth.data();
+  py::gil_scoped_release release;
+  try {
+    return o.register_depth(data, rows, cols, K, stamp);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
+  }
+}
+
+py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::array& xyz,
+                                       const std::optional<py::array_t<std::int32_t>>& ring) {
+  check_points(xyz, 2, "an (N, 3) array of points");
+  const std::size_t n = static_cast<std::size_t>(xyz.shape(0)), stride = static_cast<std::size_t>(xyz.shape(1));
+  const std::int32_t* ring_ptr = ring_pointer(ring, n);
+  const bool is_float = py::isinstance<py::array_t<float>>(xyz);
+  const void* data = xyz.data();
+  std::vector<line_odom::Vec3> pts;
+  {
+    py::gil_scoped_release release;
+    try {
+      pts = is_float ? o.downsampled_points(static_cast<const float*>(data), n, stride, ring_ptr)
+                     : o.downsampled_points(static_cast<const double*>(data), n, stride, ring_ptr);
+    } catch (const std::invalid_argument& e) {
+      throw py::value_error(e.what());
+    }
+  }
+  py::array_t<double> out({static_cast<py::ssize_t>(pts.size()), static_cast<py::ssize_t>(3)});
+  auto w = out.mutable_unchecked<2>();
+  for (py::ssize_t i = 0; i < static_cast<py::ssize_t>(pts.size()); ++i)
+    for (py::ssize_t k = 0; k < 3; ++k) w(i, k) = pts[i][k];
+  return out;
+}
+
+}  // namespace odometry_bindings
+
 PYBIND11_MODULE(_core, m) {
   m.doc() = "line_odom engine: line-intersection registration (7L, 3L1P, 1L2P) and odometry";
   m.attr("__version__") = LINE_ODOM_VERSION;
@@ -265,4 +422,29 @@ PYBIND11_MODULE(_core, m) {
         "the truth), no_solution_rate, median_error, p99_error, mean_iterations (7L).");
 
   // ---- odometry pipeline (issue 4) ----
+  {
+    using line_odom::FrameResult;
+    using line_odom::Odometry;
+    namespace ob = odometry_bindings;
+    py::class_<FrameResult>(m, "FrameResult", "One registered frame (see line_odom_core.FrameResult).")
+        .def_readonly("stamp", &FrameResult::stamp)
+        .def_property_readonly("pose", [](const FrameResult& r) -> line_odom::Mat4 { return r.pose.matrix(); })
+        .def_property_readonly("delta", [](const FrameResult& r) -> line_odom::Mat4 { return r.delta.matrix(); })
+        .def_readonly("covariance", &FrameResult::covariance)
+        .def_property_readonly("stats", [](const FrameResult& r) { return ob::stats_dict(r.stats); });
+    py::class_<Odometry>(m, "Odometry", "Stateful frame-to-frame odometry; settings: dict of dotted names.")
+        .def(py::init(&ob::make_odometry), py::arg("settings"))
+        .def("register_points", &ob::register_points, py::arg("xyz"), py::arg("stamp"), py::arg("ring") = py::none())
+        .def("register_organized", &ob::register_organized, py::arg("xyz"), py::arg("stamp"))
+        .def("register_depth", &ob::register_depth, py::arg("depth"), py::arg("K"), py::arg("stamp"))
+        .def("downsampled_points", &ob::downsampled_points, py::arg("xyz"), py::arg("ring") = py::none())
+        .def("reset",
+             [](Odometry& o, const line_odom::Mat4& pose) { o.reset(line_odom::RigidTransform::from_matrix(pose)); },
+             py::arg("pose"))
+        .def("pose", [](const Odometry& o) -> line_odom::Mat4 { return o.pose().matrix(); })
+        .def("frames", &Odometry::frames)
+        .def("settings", [](const Odometry& o) { return ob::settings_dict(o.config()); });
+    m.def("odometry_config_defaults", []() { return ob::settings_dict(line_odom::OdometryConfig{}); },
+          "Every dotted engine setting the C++ side knows, with its default.");
+  }
 }

@@ -1,0 +1,272 @@
+#!/usr/bin/env python3
+"""Frame-to-frame accuracy of line_odom next to KISS-ICP on the same frames, in one run (issue 4).
+
+    .venv/bin/python bench/accuracy.py                  # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz at 1, 1/100
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-levels 6
+    .venv/bin/python bench/accuracy.py --sim            # + the simulated 1 km street drive (KITTI devkit metric)
+
+Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
+figures where it has them, and whether each goal of issue 4 is met. KISS-ICP (a benchmark-only dependency:
+`.venv/bin/pip install kiss-icp`) gets exactly the points line_odom keeps after organizing and downsampling,
+deskew off, cold start.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import line_odom_core  # noqa: E402
+from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402
+from line_odom.metrics import relative_pose_errors  # noqa: E402
+
+KITTI_LEVELS = {1: "full", 6: "1/36", 8: "1/64"}
+TUM_LEVELS = {1: "full", 10: "1/100"}
+# The paper's own mean RPE (m, deg): KITTI 07 at full resolution, TUM fr1/xyz at 1/100 (Tables 1, 4; Fig. 1).
+PAPER = {("kitti", "07", 1): (0.0176, 0.0838), ("tum", "fr1/xyz", 10): (0.00505, 0.52)}
+
+
+def kiss_available() -> bool:
+    try:
+        import kiss_icp  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+KISS_HINT = "KISS-ICP is not installed: `.venv/bin/pip install kiss-icp` (benchmark-only dependency)"
+
+
+def kiss_odometry(max_range: float, threads: int = 0):
+    from kiss_icp.config import load_config
+    from kiss_icp.kiss_icp import KissICP
+
+    config = load_config(None)
+    config.data.deskew = False
+    config.data.max_range = max_range
+    config.mapping.voxel_size = max_range / 100.0
+    config.registration.max_num_threads = threads
+    return KissICP(config)
+
+
+@dataclasses.dataclass
+class Run:
+    poses: np.ndarray
+    ms: list[float]
+    stats: list[dict]
+
+
+@dataclasses.dataclass
+class Row:
+    dataset: str
+    sequence: str
+    level: int
+    frames: int
+    lo: tuple[float, float, float, float]   # mean t, max t, mean r, max r
+    kiss: tuple[float, float, float, float] | None
+    lo_ms: float
+    kiss_ms: float | None
+    degenerate: int
+
+
+def rpe(poses: np.ndarray, gt: np.ndarray, valid: np.ndarray | None = None):
+    t, r = relative_pose_errors(poses, gt)
+    if valid is not None:
+        keep = valid[:-1] & valid[1:]
+        t, r = t[keep], r[keep]
+    return float(t.mean()), float(t.max()), float(r.mean()), float(r.max())
+
+
+def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: dict) -> Row:
+    data = kitti_sequence(seq, frames)
+    config = line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides})
+    odom = line_odom_core.Odometry(config)
+    lo = Run([], [], [])
+    kiss_run = Run([], [], []) if kiss else None
+    kiss_odom = kiss_odometry(100.0) if kiss else None
+    for i in range(len(data)):
+        scan = data.points(i)
+        xyz = np.ascontiguousarray(scan[:, :3])
+        t0 = time.perf_counter()
+        result = odom.register_points(xyz, float(data.times[i]))
+        lo.ms.append((time.perf_counter() - t0) * 1e3)
+        lo.poses.append(result.pose)
+        lo.stats.append(result.stats)
+        if kiss_odom is not None:
+            pts = odom.downsampled_points(xyz) if level > 1 else xyz.astype(np.float64)
+            t0 = time.perf_counter()
+            kiss_odom.register_frame(pts, np.zeros(len(pts)))
+            kiss_run.ms.append((time.perf_counter() - t0) * 1e3)
+            kiss_run.poses.append(kiss_odom.last_pose.copy())
+    return Row("kitti", seq, level, len(data), rpe(np.array(lo.poses), data.poses),
+               rpe(np.array(kiss_run.poses), data.poses) if kiss_run else None,
+               float(np.mean(lo.ms[1:])), float(np.mean(kiss_run.ms[1:])) if kiss_run else None,
+               sum(s["degenerate"] for s in lo.stats))
+
+
+def depth_points(depth: np.ndarray, K: np.ndarray, step: int) -> np.ndarray:
+    """The points of every step-th row and column of a depth image, back-projected at their own pixels (the
+    same cells the engine keeps when it downsamples)."""
+    rows = np.arange(0, depth.shape[0], step)
+    cols = np.arange(0, depth.shape[1], step)
+    z = depth[np.ix_(rows, cols)].astype(np.float64)
+    u, v = np.meshgrid(cols, rows)
+    ok = np.isfinite(z) & (z > 0)
+    x = (u - K[0, 2]) * z / K[0, 0]
+    y = (v - K[1, 2]) * z / K[1, 1]
+    return np.stack([x[ok], y[ok], z[ok]], axis=1)
+
+
+def run_tum(level: int, frames: int, kiss: bool, overrides: dict) -> Row:
+    data = tum_sequence(frames)
+    config = line_odom_core.load_config("tum_kinect", {"downsample": level, **overrides})
+    odom = line_odom_core.Odometry(config)
+    lo = Run([], [], [])
+    kiss_run = Run([], [], []) if kiss else None
+    kiss_odom = kiss_odometry(5.0) if kiss else None
+    for i in range(len(data)):
+        depth = data.depth(i)
+        t0 = time.perf_counter()
+        result = odom.register_depth(depth, data.K, float(data.stamps[i]))
+        lo.ms.append((time.perf_counter() - t0) * 1e3)
+        lo.poses.append(result.pose)
+        lo.stats.append(result.stats)
+        if kiss_odom is not None:
+            pts = depth_points(depth, data.K, level)
+            in_range = (pts[:, 2] >= config["sensor.min_range"]) & (pts[:, 2] <= config["sensor.max_range"])
+            pts = pts[in_range]
+            t0 = time.perf_counter()
+            kiss_odom.register_frame(pts, np.zeros(len(pts)))
+            kiss_run.ms.append((time.perf_counter() - t0) * 1e3)
+            kiss_run.poses.append(kiss_odom.last_pose.copy())
+    return Row("tum", "fr1/xyz", level, len(data), rpe(np.array(lo.poses), data.poses, data.pose_valid),
+               rpe(np.array(kiss_run.poses), data.poses, data.pose_valid) if kiss_run else None,
+               float(np.mean(lo.ms[1:])), float(np.mean(kiss_run.ms[1:])) if kiss_run else None,
+               sum(s["degenerate"] for s in lo.stats))
+
+
+def goal(row: Row) -> tuple[str, bool | None]:
+    """The issue-4 goal for this row and whether it is met (None: cannot tell without KISS-ICP)."""
+    lo_t, _, lo_r, _ = row.lo
+    if row.dataset == "kitti" and row.level == 1:
+        text = "mean t,r <= KISS"
+        return text, None if row.kiss is None else (lo_t <= row.kiss[0] and lo_r <= row.kiss[2])
+    if row.dataset == "kitti":
+        text = "mean t <= KISS/2"
+        return text, None if row.kiss is None else lo_t <= 0.5 * row.kiss[0]
+    if row.level == 10:
+        return "<= 5.0 mm, 0.52 deg", lo_t <= 0.005 and lo_r <= 0.52
+    if row.level == 1:
+        text = "mean t,r <= KISS"
+        return text, None if row.kiss is None else (lo_t <= row.kiss[0] and lo_r <= row.kiss[2])
+    return "-", None
+
+
+def print_table(rows: list[Row]) -> None:
+    head = (f"{'data':5} {'seq':7} {'res':5} {'n':>3} | {'line_odom mean/max t [m]':>24} {'mean/max r [deg]':>17} "
+            f"{'ms':>6} {'deg':>3} | {'KISS-ICP mean/max t [m]':>23} {'mean/max r [deg]':>17} {'ms':>6} | "
+            f"{'paper t/r':>14} | goal")
+    print(head)
+    print("-" * len(head))
+    for row in rows:
+        levels = KITTI_LEVELS if row.dataset == "kitti" else TUM_LEVELS
+        lo_t, lo_tm, lo_r, lo_rm = row.lo
+        kiss = (f"{row.kiss[0]:11.4f}/{row.kiss[1]:<11.4f} {row.kiss[2]:8.3f}/{row.kiss[3]:<8.3f} "
+                f"{row.kiss_ms:6.1f}") if row.kiss else f"{'n/a':>23} {'':>17} {'':>6}"
+        paper = PAPER.get((row.dataset, row.sequence, row.level))
+        paper_text = f"{paper[0]:.4f}/{paper[1]:.3f}" if paper else "-"
+        text, met = goal(row)
+        verdict = {True: "MET", False: "MISSED", None: "?"}[met]
+        print(f"{row.dataset:5} {row.sequence:7} {levels.get(row.level, f'1/{row.level**2}'):5} {row.frames:3d} | "
+              f"{lo_t:12.4f}/{lo_tm:<11.4f} {lo_r:8.3f}/{lo_rm:<8.3f} {row.lo_ms:6.1f} {row.degenerate:3d} | "
+              f"{kiss} | {paper_text:>14} | {text}: {verdict}")
+
+
+def run_sim(kiss: bool, overrides: dict, length_m: float) -> None:
+    """Simulated street drive, KITTI devkit segment metric at full resolution and 1/36."""
+    try:
+        from line_odom import sim
+    except ImportError as err:
+        print(f"simulator not available ({err}); skipping --sim")
+        return
+    from line_odom.evaluation import kitti_segment_errors
+
+    drive = sim.street_drive(length_m=length_m, seed=0) if hasattr(sim, "street_drive") else None
+    if drive is None:
+        print("line_odom.sim has no street_drive(); skipping --sim")
+        return
+    print(f"\nsimulated street drive, {length_m:.0f} m, {len(drive)} scans (KITTI devkit metric, segments 100..800 m)")
+    print(f"{'res':5} | {'line_odom t_err [%]':>20} {'r_err [deg/m]':>14} | {'KISS-ICP t_err [%]':>19} "
+          f"{'r_err [deg/m]':>14} | goal")
+    for level, goal_pct in ((1, 1.0), (6, 3.0)):
+        config = line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides})
+        odom = line_odom_core.Odometry(config)
+        kiss_odom = kiss_odometry(100.0) if kiss else None
+        est, kiss_est = [], []
+        for i in range(len(drive)):
+            scan = drive.scan(i)
+            result = odom.register_points(scan.xyz, scan.stamp, ring=scan.ring)
+            est.append(result.pose)
+            if kiss_odom is not None:
+                pts = odom.downsampled_points(scan.xyz, ring=scan.ring) if level > 1 else scan.xyz.astype(float)
+                kiss_odom.register_frame(pts, np.zeros(len(pts)))
+                kiss_est.append(kiss_odom.last_pose.copy())
+        t_err, r_err = kitti_segment_errors(np.array(est), drive.poses)
+        k_text = ""
+        if kiss_odom is not None:
+            kt, kr = kitti_segment_errors(np.array(kiss_est), drive.poses)
+            k_text = f"{kt:19.3f} {kr:14.5f}"
+        print(f"{KITTI_LEVELS[level]:5} | {t_err:20.3f} {r_err:14.5f} | {k_text:>34} | t_err <= {goal_pct}%: "
+              f"{'MET' if t_err <= goal_pct else 'MISSED'}")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--only", choices=("kitti", "tum"), help="run one dataset")
+    parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"], help="KITTI sequences")
+    parser.add_argument("--kitti-levels", nargs="+", type=int, default=[1, 6, 8], help="downsampling steps")
+    parser.add_argument("--kitti-frames", type=int, default=None, help="frames per sequence (default all)")
+    parser.add_argument("--tum-levels", nargs="+", type=int, default=[1, 10])
+    parser.add_argument("--tum-frames", type=int, default=300)
+    parser.add_argument("--no-kiss", action="store_true", help="line_odom only")
+    parser.add_argument("--sim", action="store_true", help="also the simulated street drive")
+    parser.add_argument("--sim-length", type=float, default=1000.0, help="simulated drive length (m)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="engine setting overrides (dotted names), e.g. ransac.max_iterations=500")
+    args = parser.parse_args(argv)
+
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        import yaml
+
+        overrides[key] = yaml.safe_load(value)
+    kiss = not args.no_kiss and kiss_available()
+    if not args.no_kiss and not kiss:
+        print(KISS_HINT)
+    print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; "
+          f"KISS-ICP {'on' if kiss else 'off'} (deskew off, voxel = max_range / 100)")
+    rows: list[Row] = []
+    if args.only in (None, "kitti"):
+        for level in args.kitti_levels:
+            for seq in args.kitti:
+                rows.append(run_kitti(seq, level, args.kitti_frames, kiss, overrides))
+                print(f"  done kitti {seq} step {level}", file=sys.stderr)
+    if args.only in (None, "tum"):
+        for level in args.tum_levels:
+            rows.append(run_tum(level, args.tum_frames, kiss, overrides))
+    print()
+    print_table(rows)
+    if args.sim:
+        run_sim(kiss, overrides, args.sim_length)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

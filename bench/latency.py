@@ -1,0 +1,151 @@
+#!/usr/bin/env python3
+"""Per-frame latency of line_odom, stage by stage, next to KISS-ICP's on the same frames in one run (issue 4).
+
+    .venv/bin/python bench/latency.py                   # KITTI 00/04/07 at 1, 1/36, 1/64; TUM at 1, 1/100
+    .venv/bin/python bench/latency.py --repeat 3 --kiss-threads 1
+
+Stage times come from the engine's own stopwatch (stats["ms"]); "call" is the wall time of the Python call
+(numpy in, result out). The first frame of each run is left out (nothing to register against). KISS-ICP runs
+single-threaded by default (the goal is stated for one core). Timings on a shared machine are noisy: compare
+the ratio within one run.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import line_odom_core  # noqa: E402
+from accuracy import KISS_HINT, depth_points, kiss_available, kiss_odometry  # noqa: E402
+from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402
+
+STAGES = ("organize", "downsample", "features", "candidates", "ransac", "total")
+
+
+def kitti_frames(seqs):
+    for seq in seqs:
+        data = kitti_sequence(seq)
+        yield seq, [(np.ascontiguousarray(data.points(i)[:, :3]), float(data.times[i])) for i in range(len(data))]
+
+
+def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat):
+    stage_ms = {s: [] for s in STAGES}
+    call_ms, kiss_ms = [], []
+    for _ in range(repeat):
+        for _seq, frames in frames_by_seq:
+            odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": level}))
+            kiss_odom = kiss_odometry(100.0, kiss_threads) if kiss else None
+            for k, (xyz, stamp) in enumerate(frames):
+                t0 = time.perf_counter()
+                result = odom.register_points(xyz, stamp)
+                call = (time.perf_counter() - t0) * 1e3
+                if kiss_odom is not None:
+                    pts = odom.downsampled_points(xyz) if level > 1 else xyz.astype(np.float64)
+                    t0 = time.perf_counter()
+                    kiss_odom.register_frame(pts, np.zeros(len(pts)))
+                    kiss_call = (time.perf_counter() - t0) * 1e3
+                if k == 0:
+                    continue
+                call_ms.append(call)
+                for s in STAGES:
+                    stage_ms[s].append(result.stats["ms"][s])
+                if kiss_odom is not None:
+                    kiss_ms.append(kiss_call)
+    return stage_ms, call_ms, kiss_ms
+
+
+def time_depth(level, frames, kiss, kiss_threads, repeat):
+    data = tum_sequence(frames)
+    depths = [data.depth(i) for i in range(len(data))]
+    stage_ms = {s: [] for s in STAGES}
+    call_ms, kiss_ms = [], []
+    for _ in range(repeat):
+        odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": level}))
+        kiss_odom = kiss_odometry(5.0, kiss_threads) if kiss else None
+        for k, depth in enumerate(depths):
+            t0 = time.perf_counter()
+            result = odom.register_depth(depth, data.K, float(data.stamps[k]))
+            call = (time.perf_counter() - t0) * 1e3
+            if kiss_odom is not None:
+                pts = depth_points(depth, data.K, level)
+                pts = pts[(pts[:, 2] >= odom.config["sensor.min_range"]) & (pts[:, 2] <= odom.config["sensor.max_range"])]
+                t0 = time.perf_counter()
+                kiss_odom.register_frame(pts, np.zeros(len(pts)))
+                kiss_call = (time.perf_counter() - t0) * 1e3
+            if k == 0:
+                continue
+            call_ms.append(call)
+            for s in STAGES:
+                stage_ms[s].append(result.stats["ms"][s])
+            if kiss_odom is not None:
+                kiss_ms.append(kiss_call)
+    return stage_ms, call_ms, kiss_ms
+
+
+def goal_text(name, level, stage_ms, kiss_ms):
+    total = float(np.mean(stage_ms["total"]))
+    parts = []
+    if name == "kitti" and level == 1:
+        if kiss_ms:
+            parts.append(f"total <= KISS/2: {'MET' if total <= 0.5 * np.mean(kiss_ms) else 'MISSED'}")
+        parts.append(f"features <= 10 ms: {'MET' if np.mean(stage_ms['features']) <= 10.0 else 'MISSED'}")
+    elif name == "kitti" and level == 6:
+        parts.append(f"total <= 5 ms: {'MET' if total <= 5.0 else 'MISSED'}")
+    elif name == "tum" and level == 10:
+        parts.append(f"total <= 3 ms: {'MET' if total <= 3.0 else 'MISSED'}")
+    return "; ".join(parts) or "-"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"])
+    parser.add_argument("--kitti-levels", nargs="+", type=int, default=[1, 6, 8])
+    parser.add_argument("--tum-levels", nargs="+", type=int, default=[1, 10])
+    parser.add_argument("--tum-frames", type=int, default=60)
+    parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--kiss-threads", type=int, default=1)
+    parser.add_argument("--no-kiss", action="store_true")
+    parser.add_argument("--only", choices=("kitti", "tum"))
+    args = parser.parse_args(argv)
+
+    kiss = not args.no_kiss and kiss_available()
+    if not args.no_kiss and not kiss:
+        print(KISS_HINT)
+    print(f"line_odom_core {line_odom_core.__version__} ({line_odom_core.build_info()['flags']}); KISS-ICP "
+          f"{'on, ' + str(args.kiss_threads) + ' thread(s)' if kiss else 'off'}; mean ms per frame (p95 of total)")
+    head = (f"{'data':5} {'res':5} {'n':>4} | " + " ".join(f"{s:>10}" for s in STAGES) +
+            f" {'p95':>7} {'call':>7} | {'KISS-ICP':>8} {'ratio':>6} | goal")
+    print(head)
+    print("-" * len(head))
+    cases = []
+    if args.only in (None, "kitti"):
+        frames = list(kitti_frames(args.kitti))
+        for level in args.kitti_levels:
+            cases.append(("kitti", level, time_lidar(frames, level, kiss, args.kiss_threads, args.repeat)))
+            print_row(*cases[-1])
+    if args.only in (None, "tum"):
+        for level in args.tum_levels:
+            cases.append(("tum", level, time_depth(level, args.tum_frames, kiss, args.kiss_threads, args.repeat)))
+            print_row(*cases[-1])
+    return 0
+
+
+def print_row(name, level, measured):
+    stage_ms, call_ms, kiss_ms = measured
+    res = "full" if level == 1 else f"1/{level * level}"
+    cells = " ".join(f"{np.mean(stage_ms[s]):10.2f}" for s in STAGES)
+    p95 = np.percentile(stage_ms["total"], 95)
+    kiss = f"{np.mean(kiss_ms):8.1f} {np.mean(stage_ms['total']) / np.mean(kiss_ms):6.2f}" if kiss_ms else \
+        f"{'n/a':>8} {'':>6}"
+    print(f"{name:5} {res:5} {len(call_ms):4d} | {cells} {p95:7.2f} {np.mean(call_ms):7.2f} | {kiss} | "
+          f"{goal_text(name, level, stage_ms, kiss_ms)}", flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

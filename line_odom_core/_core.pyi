@@ -1,0 +1,81 @@
+"""Type stubs of the C++ engine module line_odom_core._core (pybind11)."""
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+def build_info() -> dict[str, Any]: ...
+
+# ---- solvers and motion estimation (issue 3) ----
+
+MAX_DIHEDRAL_DIFFERENCE_1L2P: float
+
+def solve_1l2p(line_a: npt.ArrayLike, line_b: npt.ArrayLike, planes_a: npt.ArrayLike, planes_b: npt.ArrayLike,
+               *, max_dihedral_difference: float = ...) -> list[npt.NDArray[np.float64]]:
+    """1L2P (paper 5.1): line_a (6,) meets T line_b (6,); planes_a (2,4) = T planes_b (2,4). 0 or 1 poses (4,4)."""
+
+def solve_3l1p(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, plane_a: npt.ArrayLike,
+               plane_b: npt.ArrayLike) -> list[npt.NDArray[np.float64]]:
+    """3L1P (paper 5.2): lines_a (3,6) meet T lines_b (3,6); plane_a (4,) = T plane_b (4,). 0 to 4 poses (4,4)."""
+
+def solve_7l(segments_a: npt.ArrayLike, segments_b: npt.ArrayLike, init: npt.ArrayLike | None = None, *,
+             method: str = "gauss_newton", max_iterations: int = 30000, tolerance: float = 1e-12,
+             max_residual: float = ...) -> list[npt.NDArray[np.float64]]:
+    """7L (paper 4): segments_a (7,2,3) meet T segments_b (7,2,3), from init (4,4) (None = identity).
+    method: "gauss_newton" (default) or "alternating_projection" (the paper's). 0 or 1 poses (4,4)."""
+
+# ---- odometry pipeline (issue 4) ----
+
+class FrameResult:
+    """One registered frame, as returned by Odometry.register_*.
+
+    stats keys:
+      solver: str             "7L", "3L1P" or "1L2P" (solver of the winning hypothesis); "none" on the first
+                              frame after construction/reset; "prediction" when the motion model's prediction was
+                              held (registration failed or was degenerate)
+      points: int             valid range-image cells after downsampling
+      h_lines, v_lines: int   lines fitted along rows / columns
+      planes: int             planes fitted
+      candidates: int         candidate line-intersection pairs (last pass)
+      plane_candidates: int   candidate plane pairs (last pass)
+      inliers: int            inlier line pairs of the accepted estimate
+      plane_inliers: int      inlier plane pairs of the accepted estimate
+      inlier_weight: float    weighted inlier count (weights = inverse normal-cluster size, mean 1)
+      residual_rms: float     rms line-to-line distance of the inliers after refinement (m)
+      iterations: int         RANSAC hypotheses over all passes
+      passes: int             passes that produced an accepted estimate (of registration.passes)
+      registered: bool        an estimate was accepted for this frame (the first frame counts as registered)
+      degenerate: bool        the prediction was held and the covariance inflated
+      failure: str            why, when degenerate ("" otherwise)
+      ms: dict[str, float]    per-stage milliseconds: organize, downsample, features, candidates, ransac, total
+    """
+
+    stamp: float
+    @property
+    def pose(self) -> npt.NDArray[np.float64]: ...  # (4, 4) T_world_sensor
+    @property
+    def delta(self) -> npt.NDArray[np.float64]: ...  # (4, 4) T_prev_curr
+    covariance: npt.NDArray[np.float64]  # (6, 6) of delta, order x y z rx ry rz
+    @property
+    def stats(self) -> dict[str, Any]: ...
+
+class Odometry:
+    """Stateful frame-to-frame odometry. settings: dotted engine settings (see line_odom_core.config_schema());
+    unknown names or wrong types raise ValueError. All register_* calls release the GIL."""
+
+    def __init__(self, settings: dict[str, bool | int | float | str]) -> None: ...
+    def register_points(self, xyz: npt.NDArray[np.floating], stamp: float,
+                        ring: npt.NDArray[np.int32] | None = None) -> FrameResult: ...  # xyz (N, k>=3)
+    def register_organized(self, xyz: npt.NDArray[np.floating], stamp: float) -> FrameResult: ...  # (H, W, k>=3)
+    def register_depth(self, depth: npt.NDArray[np.float32], K: npt.NDArray[np.float64],
+                       stamp: float) -> FrameResult: ...
+    def downsampled_points(self, xyz: npt.NDArray[np.floating],
+                           ring: npt.NDArray[np.int32] | None = None) -> npt.NDArray[np.float64]: ...
+    def reset(self, pose: npt.NDArray[np.float64]) -> None: ...
+    def pose(self) -> npt.NDArray[np.float64]: ...
+    def frames(self) -> int: ...
+    def settings(self) -> dict[str, bool | int | float | str]: ...
+
+def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...

@@ -1,0 +1,422 @@
+#include "odometry.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+#include "refine.hpp"
+
+namespace line_odom {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+class Stopwatch {
+ public:
+  Stopwatch() : start_(std::chrono::steady_clock::now()) {}
+  double ms() const {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start_).count();
+  }
+
+ private:
+  std::chrono::steady_clock::time_point start_;
+};
+
+double rotation_angle(const Mat3& R) {
+  const double c = std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0);
+  return std::acos(c);
+}
+
+const char* solver_name(int solver) {
+  switch (solver) {
+    case 0: return "7L";
+    case 1: return "3L1P";
+    case 2: return "1L2P";
+    case -2: return "refine";
+    default: return "none";
+  }
+}
+
+std::uint64_t mix_seed(std::uint64_t seed, std::uint64_t frame, std::uint64_t pass) {
+  std::uint64_t z = seed + 0x9E3779B97F4A7C15ull * (frame * 16 + pass + 1);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+}  // namespace
+
+RigidTransform scale_motion(const RigidTransform& T, double alpha) {
+  Eigen::AngleAxisd aa(T.R);
+  RigidTransform out;
+  out.R = Eigen::AngleAxisd(aa.angle() * alpha, aa.axis()).toRotationMatrix();
+  out.t = T.t * alpha;
+  return out;
+}
+
+Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make_sensor_model(config.sensor)) {
+  config_.features.validate();
+  if (config_.downsample < 1) throw std::invalid_argument("downsample: expected >= 1");
+  if (config_.registration.passes < 1) throw std::invalid_argument("registration.passes: expected >= 1");
+}
+
+void Odometry::reset(const RigidTransform& pose) {
+  pose_ = pose;
+  last_delta_ = RigidTransform::identity();
+  last_dt_ = 0.0;
+  prev_stamp_ = 0.0;
+  have_velocity_ = false;
+  frames_ = 0;
+  prev_features_ = ScanFeatures{};
+}
+
+RigidTransform Odometry::predict(double stamp) const {
+  if (!config_.registration.constant_velocity || !have_velocity_) return RigidTransform::identity();
+  const double dt = stamp - prev_stamp_;
+  double alpha = 1.0;
+  if (std::isfinite(dt) && dt > 0.0 && last_dt_ > 0.0) alpha = std::clamp(dt / last_dt_, 0.0, 5.0);
+  return scale_motion(last_delta_, alpha);
+}
+
+SensorModel make_sensor_model(const SensorOptions& options) {
+  SensorModel model;
+  if (options.model == "uniform") {
+    if (options.rows < 2 || options.max_elevation_deg <= options.min_elevation_deg)
+      throw std::invalid_argument("sensor: a uniform model needs rows >= 2 and max_elevation_deg > min_elevation_deg");
+    model.name = "uniform";
+    model.rows = options.rows;
+    model.cols = 2048;
+    model.max_elevation = options.max_elevation_deg * kPi / 180.0;
+    model.min_elevation = options.min_elevation_deg * kPi / 180.0;
+  } else {
+    model = sensor_preset(options.model);
+  }
+  if (options.cols > 0) model.cols = options.cols;
+  return model;
+}
+
+template <typename Scalar>
+FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std::size_t stride,
+                                      const std::int32_t* ring, double stamp) {
+  Stopwatch watch;
+  const RangeImage image = organize_points(data, count, stride, ring, sensor_, config_.sensor.limits);
+  return register_range_image(image, stamp, watch.ms());
+}
+
+template <typename Scalar>
+FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp) {
+  Stopwatch watch;
+  const RangeImage image = organize_cloud(data, rows, cols, stride, config_.sensor.limits);
+  return register_range_image(image, stamp, watch.ms());
+}
+
+FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp) {
+  Stopwatch watch;
+  const RangeImage image = organize_depth(depth, rows, cols, K, config_.sensor.limits);
+  return register_range_image(image, stamp, watch.ms());
+}
+
+template <typename Scalar>
+std::vector<Vec3> Odometry::downsampled_points(const Scalar* data, std::size_t count, std::size_t stride,
+                                               const std::int32_t* ring) const {
+  const RangeImage image = downsample(organize_points(data, count, stride, ring, sensor_, config_.sensor.limits),
+                                      std::max(1, config_.downsample));
+  std::vector<Vec3> out;
+  for (std::size_t i = 0; i < image.points.size(); ++i)
+    if (image.valid[i]) out.push_back(image.points[i]);
+  return out;
+}
+
+template FrameResult Odometry::register_points(const float*, std::size_t, std::size_t, const std::int32_t*, double);
+template FrameResult Odometry::register_points(const double*, std::size_t, std::size_t, const std::int32_t*, double);
+template FrameResult Odometry::register_organized(const float*, int, int, std::size_t, double);
+template FrameResult Odometry::register_organized(const double*, int, int, std::size_t, double);
+template std::vector<Vec3> Odometry::downsampled_points(const float*, std::size_t, std::size_t,
+                                                        const std::int32_t*) const;
+template std::vector<Vec3> Odometry::downsampled_points(const double*, std::size_t, std::size_t,
+                                                        const std::int32_t*) const;
+
+FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms) {
+  Stopwatch total;
+  FrameResult result;
+  result.stamp = stamp;
+  FrameStats& st = result.stats;
+  st.ms.organize = organize_ms;
+
+  Stopwatch stage;
+  RangeImage sparse;
+  const RangeImage* input = &image;
+  if (config_.downsample > 1) {
+    sparse = downsample(image, config_.downsample);
+    input = &sparse;
+  }
+  st.ms.downsample = stage.ms();
+  st.points = static_cast<int>(std::count(input->valid.begin(), input->valid.end(), std::uint8_t{1}));
+
+  stage = Stopwatch();
+  FeatureStats fstats;
+  ScanFeatures features = extract_features(*input, config_.features, &fstats);
+  st.ms.features = stage.ms();
+  st.ms.lines = fstats.lines_ms;
+  st.ms.normals = fstats.normals_ms;
+  st.ms.planes = fstats.planes_ms;
+  st.h_lines = static_cast<int>(features.h_lines.size());
+  st.v_lines = static_cast<int>(features.v_lines.size());
+  st.planes = static_cast<int>(features.planes.size());
+
+  if (frames_ == 0) {  // first frame: it defines the odometry frame (with the reset pose)
+    result.pose = pose_;
+    result.delta = RigidTransform::identity();
+    result.covariance = Mat6::Zero();
+    st.solver = "none";
+    st.registered = true;
+  } else {
+    const double dt = stamp - prev_stamp_;
+    const RigidTransform prediction = predict(stamp);
+    const RegistrationOptions& reg = config_.registration;
+    RigidTransform best = prediction;
+    MotionStats best_stats;
+    bool have = false;
+    CandidateOptions copt = config_.candidates;
+    Correspondences corr;
+    CandidateStats cstats;
+    std::string failure;
+    RefineOptions ropt;
+    ropt.iterations = config_.ransac.refine_iterations;
+    ropt.line_threshold = config_.ransac.inlier_threshold;
+    ropt.plane_angle_threshold = config_.ransac.plane_angle_threshold_deg * kPi / 180.0;
+    ropt.plane_distance_threshold = config_.ransac.plane_distance_threshold;
+    ropt.huber_delta = config_.ransac.huber_delta > 0.0 ? config_.ransac.huber_delta : config_.ransac.inlier_threshold;
+    ropt.degeneracy_threshold = config_.ransac.degeneracy_threshold;
+    auto sane = [&](const RigidTransform& T) {
+      if (!T.is_finite()) return false;
+      const RigidTransform deviation = prediction.inverse() * T;
+      return deviation.t.norm() <= reg.max_translation &&
+             rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
+    };
+    for (int pass = 0; pass < reg.passes; ++pass) {
+      stage = Stopwatch();
+      build_candidates(prev_features_, features, best, copt, &corr, &cstats);
+      st.ms.candidates += stage.ms();
+      st.candidates = cstats.line_pairs;
+      st.plane_candidates = cstats.plane_pairs;
+
+      stage = Stopwatch();
+      MotionOptions mopt = config_.ransac;
+      mopt.seed = mix_seed(config_.seed, static_cast<std::uint64_t>(frames_), static_cast<std::uint64_t>(pass));
+      RigidTransform estimate;
+      MotionStats ms;
+      const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms) && sane(estimate) &&
+                      ms.inliers >= reg.min_inliers;
+      st.iterations += ms.iterations;
+      // The guess itself, refined on this pass's candidates, competes with the RANSAC winner: whichever has
+      // the larger weighted inlier count on the same candidates is kept (paper §6.3 inlier counting).
+      RefineResult refined;
+      const bool refined_ok = refine_motion(corr, best, ropt, &refined) && sane(refined.T) && !refined.degenerate &&
+                              refined.line_inliers >= reg.min_inliers;
+      const double thr = config_.ransac.inlier_threshold;
+      const double score_prior = have ? score_motion(corr, best, thr) : -1.0;
+      const double score_ransac = ok ? score_motion(corr, estimate, thr) : -1.0;
+      const double score_refined = refined_ok ? score_motion(corr, refined.T, thr) : -1.0;
+      st.ms.ransac += stage.ms();
+
+      copt.max_distance *= reg.pass_distance_scale;
+      copt.plane_max_distance *= reg.pass_distance_scale;
+      if (!ok && !refined_ok) {
+        failure = ms.inliers < reg.min_inliers && ms.inliers > 0
+                      ? "too few inliers (" + std::to_string(ms.inliers) + " < " + std::to_string(reg.min_inliers) + ")"
+                      : "no model with enough support (" + std::to_string(cstats.line_pairs) + " candidates)";
+        continue;
+      }
+      if (score_ransac >= score_refined && score_ransac > score_prior) {
+        best = estimate;
+        best_stats = ms;
+      } else if (score_refined > score_prior) {
+        best = refined.T;
+        best_stats.inliers = refined.line_inliers;
+        best_stats.inlier_weight = refined.line_inlier_weight;
+        best_stats.plane_inliers = refined.plane_inliers;
+        best_stats.residual_rms = refined.residual_rms;
+        best_stats.covariance = refined.covariance;
+        best_stats.degenerate = refined.degenerate;
+        if (!have) best_stats.best_solver = -2;
+      } else {
+        continue;
+      }
+      have = true;
+      ++st.passes;
+      failure.clear();
+    }
+
+    if (have && !best_stats.degenerate && best_stats.covariance.allFinite()) {
+      result.delta = best;
+      result.covariance = best_stats.covariance;
+      st.solver = solver_name(best_stats.best_solver);
+      st.registered = true;
+    } else {
+      if (have) failure = "degenerate constraints (ill-conditioned refinement)";
+      result.delta = prediction;
+      const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
+      result.covariance = Mat6::Zero();
+      result.covariance.diagonal() << ts * ts, ts * ts, ts * ts, rs * rs, rs * rs, rs * rs;
+      if (have) result.covariance = result.covariance.cwiseMax(best_stats.covariance);
+      st.solver = "prediction";
+      st.degenerate = true;
+      st.failure = failure.empty() ? "registration failed" : failure;
+    }
+    st.inliers = best_stats.inliers;
+    st.plane_inliers = best_stats.plane_inliers;
+    st.inlier_weight = best_stats.inlier_weight;
+    st.residual_rms = best_stats.residual_rms;
+
+    pose_ = pose_ * result.delta;
+    // Keep R orthonormal over long runs.
+    Eigen::Quaterniond q(pose_.R);
+    pose_.R = q.normalized().toRotationMatrix();
+    result.pose = pose_;
+    last_delta_ = result.delta;
+    last_dt_ = (std::isfinite(dt) && dt > 0.0) ? dt : last_dt_;
+    have_velocity_ = true;
+  }
+
+  prev_features_ = std::move(features);
+  prev_stamp_ = stamp;
+  ++frames_;
+  st.ms.total = total.ms() + organize_ms;
+  return result;
+}
+
+// ---- dotted settings ----
+
+namespace {
+
+
+// Calls visit(name, field) for every setting; the one list of names the bindings, presets and schema follow.
+template <typename Config, typename Visit>
+void visit_settings(Config& c, Visit&& visit) {
+  visit("downsample", c.downsample);
+  visit("seed", c.seed);
+  visit("sensor.model", c.sensor.model);
+  visit("sensor.rows", c.sensor.rows);
+  visit("sensor.cols", c.sensor.cols);
+  visit("sensor.max_elevation_deg", c.sensor.max_elevation_deg);
+  visit("sensor.min_elevation_deg", c.sensor.min_elevation_deg);
+  visit("sensor.min_range", c.sensor.limits.min_range);
+  visit("sensor.max_range", c.sensor.limits.max_range);
+  // FEATURE_SETTINGS
+  visit("candidates.max_distance", c.candidates.max_distance);
+  visit("candidates.min_line_angle_deg", c.candidates.min_line_angle_deg);
+  visit("candidates.max_normal_angle_deg", c.candidates.max_normal_angle_deg);
+  visit("candidates.plane_max_angle_deg", c.candidates.plane_max_angle_deg);
+  visit("candidates.plane_max_distance", c.candidates.plane_max_distance);
+  visit("candidates.max_pairs_per_line", c.candidates.max_pairs_per_line);
+  visit("ransac.solver", c.ransac.solver);
+  visit("ransac.max_iterations", c.ransac.max_iterations);
+  visit("ransac.min_iterations", c.ransac.min_iterations);
+  visit("ransac.confidence", c.ransac.confidence);
+  visit("ransac.inlier_threshold", c.ransac.inlier_threshold);
+  visit("ransac.plane_angle_threshold_deg", c.ransac.plane_angle_threshold_deg);
+  visit("ransac.plane_distance_threshold", c.ransac.plane_distance_threshold);
+  visit("ransac.refine_iterations", c.ransac.refine_iterations);
+  visit("ransac.huber_delta", c.ransac.huber_delta);
+  visit("registration.passes", c.registration.passes);
+  visit("registration.pass_distance_scale", c.registration.pass_distance_scale);
+  visit("registration.min_inliers", c.registration.min_inliers);
+  visit("registration.max_translation", c.registration.max_translation);
+  visit("registration.max_rotation_deg", c.registration.max_rotation_deg);
+  visit("registration.constant_velocity", c.registration.constant_velocity);
+  visit("registration.fallback_translation_sigma", c.registration.fallback_translation_sigma);
+  visit("registration.fallback_rotation_sigma_deg", c.registration.fallback_rotation_sigma_deg);
+}
+
+const char* const kSolverNames[] = {"auto", "7L", "3L1P", "1L2P"};
+
+SettingValue to_value(bool v) { return v; }
+SettingValue to_value(int v) { return static_cast<std::int64_t>(v); }
+SettingValue to_value(std::uint64_t v) { return static_cast<std::int64_t>(v); }
+SettingValue to_value(double v) { return v; }
+SettingValue to_value(const std::string& v) { return v; }
+SettingValue to_value(SolverMode v) { return std::string(kSolverNames[static_cast<int>(v)]); }
+
+std::string assign(bool* field, const SettingValue& v) {
+  if (!std::holds_alternative<bool>(v)) return "expected a bool";
+  *field = std::get<bool>(v);
+  return {};
+}
+std::string assign(int* field, const SettingValue& v) {
+  if (!std::holds_alternative<std::int64_t>(v)) return "expected an int";
+  *field = static_cast<int>(std::get<std::int64_t>(v));
+  return {};
+}
+std::string assign(std::uint64_t* field, const SettingValue& v) {
+  if (!std::holds_alternative<std::int64_t>(v) || std::get<std::int64_t>(v) < 0) return "expected an int >= 0";
+  *field = static_cast<std::uint64_t>(std::get<std::int64_t>(v));
+  return {};
+}
+std::string assign(double* field, const SettingValue& v) {
+  if (std::holds_alternative<double>(v)) {
+    *field = std::get<double>(v);
+  } else if (std::holds_alternative<std::int64_t>(v)) {
+    *field = static_cast<double>(std::get<std::int64_t>(v));
+  } else {
+    return "expected a float";
+  }
+  return std::isfinite(*field) ? std::string() : std::string("expected a finite float");
+}
+std::string assign(std::string* field, const SettingValue& v) {
+  if (!std::holds_alternative<std::string>(v)) return "expected a string";
+  *field = std::get<std::string>(v);
+  return {};
+}
+std::string assign(SolverMode* field, const SettingValue& v) {
+  if (std::holds_alternative<std::string>(v)) {
+    const std::string& s = std::get<std::string>(v);
+    for (int i = 0; i < 4; ++i) {
+      if (s == kSolverNames[i]) {
+        *field = static_cast<SolverMode>(i);
+        return {};
+      }
+    }
+  }
+  return "expected one of auto, 7L, 3L1P, 1L2P";
+}
+
+}  // namespace
+
+std::string apply_setting(OdometryConfig* config, const std::string& name, const SettingValue& value) {
+  for (const auto& field : feature_config_fields(config->features)) {
+    if (field.first != name) continue;
+    double number = 0.0;
+    if (std::holds_alternative<bool>(value)) {
+      number = std::get<bool>(value) ? 1.0 : 0.0;
+    } else if (std::holds_alternative<std::int64_t>(value)) {
+      number = static_cast<double>(std::get<std::int64_t>(value));
+    } else if (std::holds_alternative<double>(value)) {
+      number = std::get<double>(value);
+    } else {
+      return "expected a number";
+    }
+    try {
+      set_feature_config_field(&config->features, name, number);
+    } catch (const std::invalid_argument& e) {
+      return e.what();
+    }
+    return {};
+  }
+  std::string error = "unknown setting";
+  visit_settings(*config, [&](const char* key, auto& field) {
+    if (name == key) error = assign(&field, value);
+  });
+  return error;
+}
+
+std::vector<std::pair<std::string, SettingValue>> config_settings(const OdometryConfig& config) {
+  std::vector<std::pair<std::string, SettingValue>> out;
+  visit_settings(config, [&](const char* key, const auto& field) { out.emplace_back(key, to_value(field)); });
+  for (const auto& [name, value] : feature_config_fields(config.features)) out.emplace_back(name, value);
+  return out;
+}
+
+}  // namespace line_odom

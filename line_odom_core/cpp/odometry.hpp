@@ -1,0 +1,138 @@
+// Frame-to-frame odometry with state (DESIGN.md §2): organize -> downsample -> features -> predict (constant
+// velocity) -> candidates -> hybrid RANSAC + refinement, 3 passes each seeded with the best estimate so far
+// (paper §6.3) -> compose the pose. A failed or degenerate registration holds the prediction, inflates the
+// covariance and says so in the stats; the pose is never NaN.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <variant>
+#include <vector>
+
+#include "candidates.hpp"
+#include "feature_extraction.hpp"
+#include "motion_estimation.hpp"
+#include "range_image.hpp"
+#include "scan_features.hpp"
+#include "types.hpp"
+
+namespace line_odom {
+
+struct RegistrationOptions {
+  int passes = 3;                       // paper §6.3
+  double pass_distance_scale = 1.0;     // candidate distance multiplier from one pass to the next
+  int min_inliers = 12;                 // fewer: failed, hold the prediction
+  double max_translation = 5.0;         // reject estimates this far (m) from the prediction
+  double max_rotation_deg = 30.0;       // ... or rotated this much from it
+  bool constant_velocity = true;        // false: predict identity
+  double fallback_translation_sigma = 0.5;    // covariance reported when the prediction is held
+  double fallback_rotation_sigma_deg = 5.0;
+};
+
+// Which SensorModel organizes unorganized clouds: a preset ("hdl64", "vlp16", "os128"), or "uniform" with
+// rows beams evenly spaced between max/min elevation. cols > 0 overrides the preset's azimuth bins.
+struct SensorOptions {
+  std::string model = "hdl64";
+  int rows = 0;
+  int cols = 0;
+  double max_elevation_deg = 2.0;
+  double min_elevation_deg = -24.9;
+  RangeLimits limits;
+};
+
+// The SensorModel the options describe; throws std::invalid_argument when they are inconsistent.
+SensorModel make_sensor_model(const SensorOptions& options);
+
+struct OdometryConfig {
+  int downsample = 1;  // keep every n-th row and column (paper §6.1)
+  std::uint64_t seed = 0;
+  SensorOptions sensor;
+  FeatureConfig features;  // lines.*, normals.*, planes.*
+  CandidateOptions candidates;
+  MotionOptions ransac;
+  RegistrationOptions registration;
+};
+
+struct StageMilliseconds {
+  double organize = 0, downsample = 0, features = 0, candidates = 0, ransac = 0, total = 0;
+  double lines = 0, normals = 0, planes = 0;  // parts of features
+};
+
+struct FrameStats {
+  std::string solver = "none";  // "7L", "3L1P", "1L2P"; "none" on the first frame; "prediction" when held
+  int points = 0;               // valid points after downsampling
+  int h_lines = 0, v_lines = 0, planes = 0;
+  int candidates = 0, plane_candidates = 0;  // of the last pass
+  int inliers = 0, plane_inliers = 0;
+  double inlier_weight = 0.0;
+  double residual_rms = 0.0;
+  int iterations = 0;           // RANSAC hypotheses over all passes
+  int passes = 0;               // passes that produced an estimate
+  bool registered = false;      // an estimate was accepted for this frame
+  bool degenerate = false;      // registration failed or was ill-conditioned: the prediction was held
+  std::string failure;          // why, when degenerate
+  StageMilliseconds ms;
+};
+
+struct FrameResult {
+  double stamp = 0.0;
+  RigidTransform pose;   // T_world_sensor
+  RigidTransform delta;  // T_prev_curr
+  Mat6 covariance = Mat6::Zero();  // of delta, order (x y z rx ry rz)
+  FrameStats stats;
+};
+
+class Odometry {
+ public:
+  explicit Odometry(const OdometryConfig& config);
+
+  // Unorganized points: xyz at data[i * stride + 0..2]; `ring` (nullable) gives the beam of each point.
+  template <typename Scalar>
+  FrameResult register_points(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
+                              double stamp);
+  // Organized cloud (rows x cols, row-major, `stride` elements per point); non-finite points are holes.
+  template <typename Scalar>
+  FrameResult register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp);
+  // Depth image in metres (row-major rows x cols, 0 / non-finite = no measurement) and intrinsics K.
+  FrameResult register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp);
+  // The valid points of an unorganized cloud after organizing and downsampling, as the pipeline sees them.
+  template <typename Scalar>
+  std::vector<Vec3> downsampled_points(const Scalar* data, std::size_t count, std::size_t stride,
+                                       const std::int32_t* ring) const;
+  // Registers an already organized range image (full resolution; downsampling is applied here).
+  FrameResult register_range_image(const RangeImage& image, double stamp, double organize_ms = 0.0);
+
+  void reset(const RigidTransform& pose = RigidTransform::identity());
+
+  const OdometryConfig& config() const { return config_; }
+  const RigidTransform& pose() const { return pose_; }
+  int frames() const { return frames_; }
+  const ScanFeatures& last_features() const { return prev_features_; }
+
+ private:
+  RigidTransform predict(double stamp) const;
+
+  OdometryConfig config_;
+  SensorModel sensor_;
+  RigidTransform pose_;
+  RigidTransform last_delta_;
+  double last_dt_ = 0.0;
+  double prev_stamp_ = 0.0;
+  bool have_velocity_ = false;
+  int frames_ = 0;
+  ScanFeatures prev_features_;
+};
+
+// Dotted settings ("ransac.max_iterations", ...) as in the ROS parameters and YAML presets.
+using SettingValue = std::variant<bool, std::int64_t, double, std::string>;
+// Sets one setting; returns an empty string on success, else what was wrong (unknown name, wrong type).
+std::string apply_setting(OdometryConfig* config, const std::string& name, const SettingValue& value);
+// Every setting with its current value, in a stable order.
+std::vector<std::pair<std::string, SettingValue>> config_settings(const OdometryConfig& config);
+
+// Velocity scaling of a motion: exp(alpha * log(T)) on SO(3) x R^3 (rotation angle and translation scaled).
+RigidTransform scale_motion(const RigidTransform& T, double alpha);
+
+}  // namespace line_odom
