@@ -438,3 +438,54 @@ def test_write_tum_reads_back_with_the_dataset_reader(tmp_path):
     for i, f in enumerate(frames):
         np.testing.assert_allclose(seq.depth(i), f.data, atol=0.5 / 5000 + 1e-6)
         np.testing.assert_allclose(seq.poses[i], f.pose, atol=1e-6)
+
+
+# --- motion during the sweep -------------------------------------------------------------------------------------
+
+def test_sweep_without_motion_equals_single_pose_scan(street, drive):
+    lidar = sim.Lidar.vlp16(sectors=7)
+    T = drive.poses[120]
+    still = lidar.scan(street, T)
+    swept = lidar.scan(street, T, T_end=T)
+    np.testing.assert_array_equal(still.label, swept.label)
+    np.testing.assert_array_equal(still.range, swept.range)
+    assert len(swept.blocks) == 7 and swept.blocks[0][0] == 0 and swept.blocks[-1][1] == lidar.shape[1]
+    assert not still.time.any()
+
+
+def test_sweep_with_motion_is_cast_from_the_moving_sensor():
+    # Driving at 20 m/s towards a wall 30 m ahead (plane x = 30): the sensor moves 2 m during the sweep.
+    wall = sim.SceneBuilder().add_box([30.15, 0, 0], [0.3, 400, 400], 0.0, "wall").build()
+    lidar = sim.Lidar.vlp16(sectors=16, rate_hz=10.0)
+    T0, T1 = _pose(z=1.0), _pose(x=2.0, z=1.0, yaw=0.05)
+    scan = lidar.scan(wall, T0, stamp=5.0, T_end=T1)
+    assert len(scan) > 1000
+    # Every point lies on the wall when placed with the pose of its column block...
+    for T, (c0, c1) in zip(scan.poses, scan.blocks):
+        m = (scan.column >= c0) & (scan.column < c1)
+        if m.any():
+            np.testing.assert_allclose(_world(scan.points[m], T)[:, 0], 30.0, atol=1e-4)
+    # ...but not with the start pose: the raw points are distorted by the motion.
+    assert np.abs(_world(scan.points, T0)[:, 0] - 30.0).max() > 0.5
+    # Per-point time: when its column fired, within one revolution; later columns saw the wall nearer.
+    np.testing.assert_allclose(scan.time, (scan.column + 0.5) / lidar.shape[1] * 0.1, rtol=1e-6)
+    fwd = scan.ring == 7
+    assert scan.time[fwd].max() < 0.1
+    # Interpolated block poses: first/last block near the start/end pose, translation monotone along x.
+    assert np.all(np.diff(scan.poses[:, 0, 3]) > 0) and 0 < scan.poses[0, 0, 3] < 0.1 and 1.9 < scan.poses[-1, 0, 3] < 2.0
+
+
+def test_simulate_with_motion_distortion_and_pose_interpolation():
+    traj = sim.street_drive(sim.street_scene(300, seed=1), frames=20, seed=1)
+    for i in (0, 7, 19):
+        np.testing.assert_allclose(traj.pose_at(traj.stamps[i]), traj.poses[i], atol=1e-9)
+    mid = traj.pose_at((traj.stamps[3] + traj.stamps[4]) / 2)
+    np.testing.assert_allclose(mid[:3, 3], (traj.poses[3, :3, 3] + traj.poses[4, :3, 3]) / 2, atol=1e-9)
+    beyond = traj.pose_at(traj.stamps[-1] + 0.1)       # constant-velocity extrapolation
+    step = traj.poses[-1, :3, 3] - traj.poses[-2, :3, 3]
+    np.testing.assert_allclose(beyond[:3, 3], traj.poses[-1, :3, 3] + step, atol=1e-9)
+    run = sim.make("street", frames=2, seed=1, sensor="vlp16", motion_distortion=True)
+    frames = list(run)
+    assert frames[1].data.time.max() > 0.09
+    np.testing.assert_allclose(frames[1].data.poses[0][:3, 3], run.trajectory.pose_at(
+        frames[1].stamp + 0.5 * (frames[1].data.blocks[0][1]) / run.sensor.shape[1] / 10.0)[:3, 3], atol=1e-6)

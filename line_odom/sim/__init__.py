@@ -37,7 +37,9 @@ Sensors (``sensors.py``)
     ``lidar.elevations`` / ``lidar.azimuths`` (radians, row / column order), ``lidar.shape``.
     Noise: Gaussian along the ray, ``noise_std`` metres; ``dropout`` drops that fraction of returns. The noise
     generator is seeded once per sensor: the same seed and scan sequence give identical data (``reseed()``).
-    All rays of a sweep leave from one pose (no motion distortion).
+    All rays of a sweep leave from one pose (no motion distortion) unless ``scan(..., T_end=T)`` gives the pose one
+    revolution later: then columns fire in order over the sweep (``sectors`` pose steps), points stay raw in the
+    sensor frame of their firing time and ``scan.time`` (N,) float32 gives it in seconds after ``stamp``.
 
     ``DepthCamera(width=320, height=240, fx=262.5, fy=262.5, cx=None, cy=None, *, min_depth=0.3, max_depth=8,
     noise_std=0, quadratic_noise=True, dropout=0, seed=0)``; ``DepthCamera.kinect()`` (640x480, fx 517.3, fy 516.5,
@@ -59,8 +61,8 @@ Scenes (``scenes.py``; ``scene.py`` has ``Scene``, ``SceneBuilder`` and the ray 
     .build(name)``.
 
 Trajectories (``trajectories.py``) -> ``Trajectory(stamps (N,), poses (N, 4, 4), frame "body"|"optical")``
-    with ``length_m``, ``positions``, ``relative()`` (T_(k-1)k), ``in_frame("optical"|"body")``, iteration over
-    (stamp, pose).
+    with ``length_m``, ``positions``, ``relative()`` (T_(k-1)k), ``pose_at(t)`` (interpolated),
+    ``in_frame("optical"|"body")``, iteration over (stamp, pose).
     ``street_drive(scene, frames=None, rate_hz=10, speed=10, seed=0, *, height=1.73, lane_offset=-1.75)``:
         right lane, +-10 % speed, lane drift, small pitch/roll; ``frames=None`` covers the whole street
         (>= ``length_m`` metres of path).
@@ -68,7 +70,8 @@ Trajectories (``trajectories.py``) -> ``Trajectory(stamps (N,), poses (N, 4, 4),
     ``handheld_path(room, frames=300, rate_hz=30, seed=0, *, amplitude=0.15, angle_deg=4)`` (optical frame).
 
 Runs (``runner.py``)
-    ``make(kind, frames=100, seed=0, *, sensor=None, rate_hz=None, speed=None, noise_std=None, **scene_kw)``
+    ``make(kind, frames=100, seed=0, *, sensor=None, rate_hz=None, speed=None, noise_std=None,
+    motion_distortion=False, **scene_kw)``
     -> ``Simulation`` (``.scene``, ``.trajectory``, ``.sensor``, iterable of ``SimFrame(stamp, data, pose)``);
     ``simulate(...)`` = ``iter(make(...))``. Kinds: ``street`` (HDL-64, 10 Hz, 10 m/s), ``room`` (depth camera,
     30 Hz), ``empty``, ``ground``, ``corridor``, ``wall``, ``far`` (HDL-64 driving straight along +x at

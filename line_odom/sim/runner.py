@@ -29,6 +29,7 @@ class Simulation:
     trajectory: Trajectory      # already in the sensor's frame convention
     sensor: Lidar | DepthCamera
     kind: str = ""
+    motion_distortion: bool = False
 
     def __len__(self) -> int:
         return len(self.trajectory)
@@ -37,7 +38,8 @@ class Simulation:
         """Frame ``i`` (noise comes from the sensor's generator in call order; iterate for reproducible runs)."""
         stamp, T = self.trajectory[i]
         if isinstance(self.sensor, Lidar):
-            data = self.sensor.scan(self.scene, T, stamp=float(stamp))
+            T_end = self.trajectory.pose_at(stamp + 1.0 / self.sensor.rate_hz) if self.motion_distortion else None
+            data = self.sensor.scan(self.scene, T, stamp=float(stamp), T_end=T_end)
         else:
             data = self.sensor.render(self.scene, T)
         return SimFrame(float(stamp), data, T.copy())
@@ -63,12 +65,15 @@ def _sensor(sensor, noise_std, seed):
 
 
 def make(kind: str = "street", frames: int = 100, seed: int = 0, *, sensor=None, rate_hz: float | None = None,
-         speed: float | None = None, noise_std: float | None = None, **scene_kw) -> Simulation:
+         speed: float | None = None, noise_std: float | None = None, motion_distortion: bool = False,
+         **scene_kw) -> Simulation:
     """Build a run of ``frames`` frames. ``street``: HDL-64 on a car at ``speed`` (10 m/s) and ``rate_hz`` (10 Hz)
     through ``street_scene`` (1 km long unless the drive needs more, so runs of up to 1 km share their street for a
     seed). ``room``: depth camera (320x240 ``DepthCamera()`` unless ``sensor`` says otherwise) on a handheld path
     at 30 Hz. Degenerate kinds (``empty``, ``ground``, ``corridor``, ``wall``, ``far``): the sensor drives straight
-    along +x at ``speed`` (10 m/s; 0 = standing still). ``noise_std`` applies to preset sensors (default: none)."""
+    along +x at ``speed`` (10 m/s; 0 = standing still). ``noise_std`` applies to preset sensors (default: none).
+    ``motion_distortion``: LiDAR sweeps are cast while the sensor moves (see ``Lidar.scan(T_end=...)``); the pose
+    of a frame is then the pose at its stamp, when the sweep starts."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     if int(frames) != frames or frames < 1:
@@ -102,7 +107,7 @@ def make(kind: str = "street", frames: int = 100, seed: int = 0, *, sensor=None,
             scene = scenes.far_scene(**{"min_distance": travel + 200.0, "seed": seed, **scene_kw})
         traj = straight_drive(frames, rate, v, height=height)
     traj = traj.in_frame("optical" if isinstance(sensor, DepthCamera) else "body")
-    return Simulation(scene, traj, sensor, kind)
+    return Simulation(scene, traj, sensor, kind, bool(motion_distortion))
 
 
 def simulate(kind: str = "street", frames: int = 100, seed: int = 0, **kw) -> Iterator[SimFrame]:

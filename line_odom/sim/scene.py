@@ -223,36 +223,50 @@ class RayGrid:
         raise NotImplementedError
 
 
+def _check_pose(T) -> np.ndarray:
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"T_world_sensor must be a finite 4x4 pose, got shape {T.shape}")
+    return T
+
+
 def cast(scene: Scene, T_world_sensor: np.ndarray, grid: RayGrid, max_range: float,
          occlusion_culling: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Nearest hit along every ray: ``t`` (H, W) (inf = no hit within ``max_range``) and the primitive id
     (H, W) int32 (-1 = none). ``max_range`` bounds ``t`` (range for LiDAR, depth for a camera)."""
-    T = np.asarray(T_world_sensor, dtype=float)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"T_world_sensor must be a finite 4x4 pose, got shape {T.shape}")
-    R_ws, t_ws = T[:3, :3], T[:3, 3]
+    return cast_columns(scene, [_check_pose(T_world_sensor)], [(0, grid.shape[1])], grid, max_range, occlusion_culling)
+
+
+def cast_columns(scene: Scene, poses, column_blocks, grid: RayGrid, max_range: float,
+                 occlusion_culling: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Like :func:`cast`, but the grid's columns ``column_blocks[j] = (c0, c1)`` are cast from ``poses[j]`` (a
+    sweeping sensor that moves while it turns)."""
     dt = grid.dtype.type
     H, W = grid.shape
     best = np.full((H, W), np.inf, dtype=grid.dtype)
     label = np.full((H, W), -1, dtype=np.int32)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for i, (n, d) in enumerate(zip(scene.plane_n, scene.plane_d)):
-            n_s = R_ws.T @ n
-            d_s = float(n @ t_ws + d)
-            nd = grid.dx * dt(n_s[0]) + grid.dy * dt(n_s[1]) + grid.dz * dt(n_s[2])
-            t = dt(-d_s) / nd
-            hit = (t > 0) & (t < best)
-            best[hit] = t[hit]
-            label[hit] = i
-        if len(scene.bound_radius):
-            _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_culling)
+        for T, (c0, c1) in zip(poses, column_blocks):
+            T = _check_pose(T)
+            R_ws, t_ws = T[:3, :3], T[:3, 3]
+            b, lab = best[:, c0:c1], label[:, c0:c1]
+            dx, dy, dz = grid.dx[:, c0:c1], grid.dy[:, c0:c1], grid.dz[:, c0:c1]
+            for i, (n, d) in enumerate(zip(scene.plane_n, scene.plane_d)):
+                n_s = R_ws.T @ n
+                d_s = float(n @ t_ws + d)
+                t = dt(-d_s) / (dx * dt(n_s[0]) + dy * dt(n_s[1]) + dz * dt(n_s[2]))
+                hit = (t > 0) & (t < b)
+                b[hit] = t[hit]
+                lab[hit] = i
+            if len(scene.bound_radius):
+                _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_culling, c0, c1)
     far = ~(best <= max_range)
     best[far] = np.inf
     label[far] = -1
     return best, label
 
 
-def _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_culling) -> None:
+def _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_culling, col0, col1) -> None:
     dt = grid.dtype.type
     c_rel = scene.bound_center - t_ws
     near = np.linalg.norm(c_rel, axis=1) - scene.bound_radius <= max_range
@@ -276,6 +290,9 @@ def _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_cul
     for j, k in enumerate(order):
         pid = ids[k]
         for r0, r1, c0, c1 in windows[j]:
+            c0, c1 = max(c0, col0), min(c1, col1)
+            if c1 <= c0:
+                continue
             view = best[r0:r1, c0:c1]
             if view.size == 0:
                 continue

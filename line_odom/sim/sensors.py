@@ -13,7 +13,9 @@ import functools
 
 import numpy as np
 
-from line_odom.sim.scene import _BOX_EDGES, RayGrid, Scene, cast, rotate
+from scipy.spatial.transform import Rotation
+
+from line_odom.sim.scene import _BOX_EDGES, RayGrid, Scene, _check_pose, cast, cast_columns, rotate
 
 
 def hdl64_elevations_deg() -> np.ndarray:
@@ -85,7 +87,8 @@ class LidarScan:
     none); ``label`` (H, W) int32 primitive id of the surface hit (-1 none); ``points`` (N, 3) float32 and ``ring``
     (N,) uint16 (= row), ``column`` (N,) the valid returns in row-major order (ring by ring); ``intensity`` (N,)
     float32 in [0, 1] (computed on first use): the surface's albedo times |cos| of the incidence angle;
-    ``normals`` (N, 3) the true surface normals in the sensor frame (computed on first use)."""
+    ``normals`` (N, 3) the true surface normals in the sensor frame (computed on first use); ``time`` (N,) float32
+    seconds from ``stamp`` at which each point was measured (all 0 unless the sweep was cast with motion)."""
 
     organized: np.ndarray
     range: np.ndarray
@@ -93,9 +96,11 @@ class LidarScan:
     points: np.ndarray
     ring: np.ndarray
     column: np.ndarray
+    time: np.ndarray
     stamp: float = 0.0
     scene: Scene | None = None
-    pose: np.ndarray | None = None
+    poses: np.ndarray | None = None          # (S, 4, 4) pose each column block was cast from
+    blocks: tuple = ()                       # S (c0, c1) column blocks
     directions: tuple | None = None
 
     def __repr__(self) -> str:
@@ -112,9 +117,13 @@ class LidarScan:
     def normals(self) -> np.ndarray:
         if self.scene is None:
             raise ValueError("normals need the scene and pose the scan was taken from")
-        R, t = self.pose[:3, :3], self.pose[:3, 3]
+        out = np.zeros(self.points.shape, dtype=np.float32)
         hit = self.label[self.ring, self.column]
-        return rotate(self.scene.normals(rotate(self.points, R) + t, hit), R.T).astype(np.float32)
+        for T, (c0, c1) in zip(self.poses, self.blocks):
+            m = (self.column >= c0) & (self.column < c1)
+            R, t = T[:3, :3], T[:3, 3]
+            out[m] = rotate(self.scene.normals(rotate(self.points[m], R) + t, hit[m]), R.T)
+        return out
 
     @functools.cached_property
     def intensity(self) -> np.ndarray:
@@ -131,11 +140,12 @@ class Lidar:
     """A spinning LiDAR: beams at ``elevations_deg`` (sorted top to bottom here), ``columns`` azimuth steps per
     revolution, returns between ``min_range`` and ``max_range`` metres, optional Gaussian range noise
     ``noise_std`` (m) and random ``dropout`` (fraction of returns lost). Noise is drawn from a generator seeded
-    with ``seed``: the same sensor settings, seed and sequence of scans give identical data."""
+    with ``seed``: the same sensor settings, seed and sequence of scans give identical data. ``rate_hz`` (revolutions
+    per second) and ``sectors`` (pose steps per revolution) matter only for sweeps cast with motion (``T_end``)."""
 
     def __init__(self, elevations_deg, columns: int, *, max_range: float = 120.0, min_range: float = 1.0,
                  noise_std: float = 0.0, dropout: float = 0.0, seed: int = 0, name: str = "lidar",
-                 dtype=np.float32) -> None:
+                 rate_hz: float = 10.0, sectors: int = 32, dtype=np.float32) -> None:
         el = np.sort(np.asarray(elevations_deg, dtype=float).ravel())[::-1]
         if el.size == 0 or not np.all(np.abs(el) < 90):
             raise ValueError(f"elevations_deg must be non-empty angles within (-90, 90), got {elevations_deg!r}")
@@ -147,7 +157,10 @@ class Lidar:
             raise ValueError(f"noise_std must be >= 0, got {noise_std}")
         if not 0 <= dropout < 1:
             raise ValueError(f"dropout must be in [0, 1), got {dropout}")
+        if not rate_hz > 0 or int(sectors) < 1:
+            raise ValueError(f"need rate_hz > 0 and sectors >= 1, got rate_hz={rate_hz}, sectors={sectors}")
         self.name = name
+        self.rate_hz, self.sectors = float(rate_hz), int(sectors)
         self.elevations_deg = el
         self.max_range, self.min_range = float(max_range), float(min_range)
         self.noise_std, self.dropout, self.seed = float(noise_std), float(dropout), int(seed)
@@ -192,9 +205,30 @@ class Lidar:
         """Restart the noise sequence (from ``seed`` or the constructor's seed)."""
         self._rng = np.random.default_rng(self.seed if seed is None else int(seed))
 
-    def scan(self, scene: Scene, T_world_sensor, stamp: float = 0.0) -> LidarScan:
-        """Ray-cast one sweep from the pose ``T_world_sensor`` (all rays from one pose, no motion distortion)."""
-        rng_img, label = cast(scene, T_world_sensor, self.grid, self.max_range)
+    def sweep_poses(self, T_start, T_end) -> tuple[np.ndarray, list[tuple[int, int]]]:
+        """Poses of the ``sectors`` column blocks of a sweep from ``T_start`` (column 0 fires) to ``T_end`` (one
+        revolution later): each block at its middle firing time, rotation by slerp, translation linearly."""
+        T0, T1 = _check_pose(T_start), _check_pose(T_end)
+        W = self.shape[1]
+        edges = np.linspace(0, W, min(self.sectors, W) + 1).round().astype(int)
+        blocks = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+        f = np.array([(a + b) / 2 / W for a, b in blocks])
+        rotvec = Rotation.from_matrix(T0[:3, :3].T @ T1[:3, :3]).as_rotvec()
+        poses = np.tile(np.eye(4), (len(blocks), 1, 1))
+        poses[:, :3, :3] = T0[:3, :3] @ Rotation.from_rotvec(f[:, None] * rotvec).as_matrix()
+        poses[:, :3, 3] = (1 - f)[:, None] * T0[:3, 3] + f[:, None] * T1[:3, 3]
+        return poses, blocks
+
+    def scan(self, scene: Scene, T_world_sensor, stamp: float = 0.0, *, T_end=None) -> LidarScan:
+        """Ray-cast one sweep. Without ``T_end`` every ray leaves from ``T_world_sensor`` (no motion distortion).
+        With ``T_end`` (the pose one revolution, ``1 / rate_hz`` s, later) the sensor moves during the sweep:
+        column c fires at ``(c + 0.5) / W`` of the revolution, cast in ``sectors`` blocks from interpolated
+        poses; points stay in the sensor frame of their firing time (raw, not deskewed) and ``time`` says when."""
+        if T_end is None:
+            poses, blocks = _check_pose(T_world_sensor)[None], [(0, self.shape[1])]
+        else:
+            poses, blocks = self.sweep_poses(T_world_sensor, T_end)
+        rng_img, label = cast_columns(scene, poses, blocks, self.grid, self.max_range)
         valid = np.isfinite(rng_img) & (rng_img >= self.min_range)
         if self.noise_std > 0 or self.dropout > 0:
             idx = np.flatnonzero(valid)
@@ -210,9 +244,13 @@ class Lidar:
         g = self.grid
         organized = np.stack([g.dx * rng_img, g.dy * rng_img, g.dz * rng_img], axis=-1).astype(np.float32)
         rows, cols = np.nonzero(valid)
+        if T_end is None:
+            times = np.zeros(len(cols), np.float32)
+        else:
+            times = ((cols + 0.5) / self.shape[1] / self.rate_hz).astype(np.float32)
         return LidarScan(organized=organized, range=rng_img, label=label, points=organized[rows, cols],
-                         ring=rows.astype(np.uint16), column=cols.astype(np.int32), stamp=float(stamp), scene=scene,
-                         pose=np.array(T_world_sensor, dtype=float), directions=(g.dx, g.dy, g.dz))
+                         ring=rows.astype(np.uint16), column=cols.astype(np.int32), time=times, stamp=float(stamp),
+                         scene=scene, poses=poses, blocks=tuple(blocks), directions=(g.dx, g.dy, g.dz))
 
 
 class _PinholeGrid(RayGrid):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from line_odom.sim.scene import Scene
 
@@ -77,6 +78,20 @@ class Trajectory:
             return self
         X = T_BODY_OPTICAL if frame == "optical" else np.linalg.inv(T_BODY_OPTICAL)
         return Trajectory(self.stamps.copy(), self.poses @ X, frame)
+
+    def pose_at(self, t: float) -> np.ndarray:
+        """Pose at time ``t``: interpolated between samples (slerp + linear), extrapolated at constant velocity
+        beyond the first/last sample."""
+        if len(self) == 1:
+            return self.poses[0].copy()
+        i = int(np.clip(np.searchsorted(self.stamps, t) - 1, 0, len(self) - 2))
+        T0, T1 = self.poses[i], self.poses[i + 1]
+        f = (float(t) - self.stamps[i]) / (self.stamps[i + 1] - self.stamps[i])
+        out = np.eye(4)
+        rotvec = Rotation.from_matrix(T0[:3, :3].T @ T1[:3, :3]).as_rotvec()
+        out[:3, :3] = T0[:3, :3] @ Rotation.from_rotvec(f * rotvec).as_matrix()
+        out[:3, 3] = (1 - f) * T0[:3, 3] + f * T1[:3, 3]
+        return out
 
     def relative(self) -> np.ndarray:
         """Frame-to-frame motions T_(k-1)k, (N-1, 4, 4)."""
