@@ -157,7 +157,9 @@ def test_windowed_cast_equals_brute_force(street, drive):
 
     class FullGrid(RayGrid):
         def windows(self, corners, center, radius, dmin, dmax):
-            return [[(0, self.shape[0], 0, self.shape[1])] for _ in range(len(corners))]
+            out = np.zeros((len(corners), 2, 4), dtype=np.int64)
+            out[:, 0] = (0, self.shape[0], 0, self.shape[1])
+            return out
 
     for lidar in (sim.Lidar.vlp16(max_range=100.0), sim.Lidar(sim.hdl64_elevations_deg(), 500, max_range=100.0)):
         full = FullGrid(np.stack([lidar.grid.dx, lidar.grid.dy, lidar.grid.dz], axis=-1))

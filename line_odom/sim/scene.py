@@ -216,10 +216,11 @@ class RayGrid:
         self.dd = self.dx * self.dx + self.dy * self.dy + self.dz * self.dz
 
     def windows(self, corners: np.ndarray, center: np.ndarray, radius: np.ndarray,
-                dmin: np.ndarray, dmax: np.ndarray) -> list[list[tuple[int, int, int, int]]]:
-        """Per convex object (K): a list of (row0, row1, col0, col1) blocks holding every ray that can hit it.
-        ``corners`` (K, 8, 3) of its bounding box, bounding sphere ``center`` (K, 3) / ``radius`` (K,), and the
-        nearest/farthest distance of the box from the origin ``dmin``/``dmax`` (K,), all in the sensor frame."""
+                dmin: np.ndarray, dmax: np.ndarray) -> np.ndarray:
+        """Per convex object (K): up to two blocks (row0, row1, col0, col1) of the grid holding every ray that can
+        hit it, as an int array (K, 2, 4) (an unused block is empty: row1 <= row0 or col1 <= col0). Inputs in the
+        sensor frame: ``corners`` (K, 8, 3) of its bounding box, its bounding sphere ``center`` (K, 3) and
+        ``radius`` (K,), and the nearest/farthest distance of the box from the origin ``dmin``/``dmax`` (K,)."""
         raise NotImplementedError
 
 
@@ -285,31 +286,30 @@ def _cast_objects(scene, R_ws, t_ws, grid, best, label, max_range, occlusion_cul
     order = np.flatnonzero(keep)[np.argsort(dmin[keep], kind="stable")]
     if order.size == 0:
         return
-    windows = grid.windows(corners[order], c_s[order], scene.bound_radius[ids[order]], dmin[order], dmax[order])
+    blocks = grid.windows(corners[order], c_s[order], scene.bound_radius[ids[order]], dmin[order], dmax[order])
+    blocks[..., 2] = np.maximum(blocks[..., 2], col0)
+    blocks[..., 3] = np.minimum(blocks[..., 3], col1)
+    used = (blocks[..., 1] > blocks[..., 0]) & (blocks[..., 3] > blocks[..., 2])
     nb, npl = scene.num_boxes, scene.num_planes
-    for j, k in enumerate(order):
+    for j, b in zip(*np.nonzero(used)):
+        k = order[j]
         pid = ids[k]
-        for r0, r1, c0, c1 in windows[j]:
-            c0, c1 = max(c0, col0), min(c1, col1)
-            if c1 <= c0:
-                continue
-            view = best[r0:r1, c0:c1]
-            if view.size == 0:
-                continue
-            if occlusion_culling and dmin[k] > 0 and np.all(view <= dmin[k]):
-                continue
-            dx, dy, dz = grid.dx[r0:r1, c0:c1], grid.dy[r0:r1, c0:c1], grid.dz[r0:r1, c0:c1]
-            if pid < nb:
-                t = _intersect_box(dx, dy, dz, R_sb[k], origin_local[k], half[k], dt)
-            else:
-                ci = pid - nb
-                base = R_ws.T @ (np.array([*scene.cyl_xy[ci], scene.cyl_z[ci, 0]]) - t_ws)
-                t = _intersect_cylinder(dx, dy, dz, grid.dd[r0:r1, c0:c1], R_ws[2], base,
-                                        scene.cyl_z[ci, 1] - scene.cyl_z[ci, 0], scene.cyl_radius[ci], dt)
-            hit = t < view
-            if hit.any():
-                view[hit] = t[hit]
-                label[r0:r1, c0:c1][hit] = npl + pid
+        r0, r1, c0, c1 = (int(v) for v in blocks[j, b])
+        view = best[r0:r1, c0:c1]
+        if occlusion_culling and dmin[k] > 0 and np.all(view <= dmin[k]):
+            continue
+        dx, dy, dz = grid.dx[r0:r1, c0:c1], grid.dy[r0:r1, c0:c1], grid.dz[r0:r1, c0:c1]
+        if pid < nb:
+            t = _intersect_box(dx, dy, dz, R_sb[k], origin_local[k], half[k], dt)
+        else:
+            ci = pid - nb
+            base = R_ws.T @ (np.array([*scene.cyl_xy[ci], scene.cyl_z[ci, 0]]) - t_ws)
+            t = _intersect_cylinder(dx, dy, dz, grid.dd[r0:r1, c0:c1], R_ws[2], base,
+                                    scene.cyl_z[ci, 1] - scene.cyl_z[ci, 0], scene.cyl_radius[ci], dt)
+        hit = t < view
+        if hit.any():
+            view[hit] = t[hit]
+            label[r0:r1, c0:c1][hit] = npl + pid
 
 
 def _intersect_box(dx, dy, dz, R_sb, o, h, dt):

@@ -67,17 +67,13 @@ class _SphericalGrid(RayGrid):
         hi = az[np.arange(K), g] + np.where(g == 7, 0.0, 2 * np.pi)
         c0 = np.floor((np.pi - hi) / self.step - 0.5).astype(int) - 1
         c1 = np.ceil((np.pi - lo) / self.step - 0.5).astype(int) + 2
-        out = []
-        for k in range(K):
-            if r1[k] <= r0[k]:
-                out.append([])
-                continue
-            if not partial[k] or c1[k] - c0[k] >= W:
-                out.append([(r0[k], r1[k], 0, W)])
-                continue
-            a = c0[k] % W
-            b = a + (c1[k] - c0[k])
-            out.append([(r0[k], r1[k], a, b)] if b <= W else [(r0[k], r1[k], a, W), (r0[k], r1[k], 0, b - W)])
+        full = ~partial | (c1 - c0 >= W)
+        a = np.where(full, 0, c0 % W)
+        b = np.where(full, W, a + (c1 - c0))
+        out = np.zeros((K, 2, 4), dtype=np.int64)
+        out[:, :, 0], out[:, :, 1] = r0[:, None], r1[:, None]
+        out[:, 0, 2], out[:, 0, 3] = a, np.minimum(b, W)
+        out[:, 1, 2], out[:, 1, 3] = 0, np.maximum(b - W, 0)        # the part wrapping past the last column
         return out
 
 
@@ -277,15 +273,12 @@ class _PinholeGrid(RayGrid):
         c1 = np.ceil(np.where(ok, u, -np.inf).max(axis=1)) + 2
         r0 = np.floor(np.where(ok, v, np.inf).min(axis=1)) - 1
         r1 = np.ceil(np.where(ok, v, -np.inf).max(axis=1)) + 2
+        out = np.zeros((len(corners), 2, 4), dtype=np.int64)
         any_ok = ok.any(axis=1)
-        out = []
-        for k in range(len(corners)):
-            if not any_ok[k]:
-                out.append([])
-                continue
-            rr0, rr1 = int(max(r0[k], 0)), int(min(r1[k], H))
-            cc0, cc1 = int(max(c0[k], 0)), int(min(c1[k], W))
-            out.append([(rr0, rr1, cc0, cc1)] if rr1 > rr0 and cc1 > cc0 else [])
+        out[:, 0, 0] = np.where(any_ok, np.clip(r0, 0, H), 0)
+        out[:, 0, 1] = np.where(any_ok, np.clip(r1, 0, H), 0)
+        out[:, 0, 2] = np.where(any_ok, np.clip(c0, 0, W), 0)
+        out[:, 0, 3] = np.where(any_ok, np.clip(c1, 0, W), 0)
         return out
 
 
