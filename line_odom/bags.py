@@ -302,16 +302,19 @@ def tum_to_bag(tum_dir: str | Path, out_bag: str | Path, *, storage: str = "sqli
 def lidar_frames_to_bag(out_bag: str | Path, frames, *, topic: str = "/points", frame_id: str = "lidar",
                         storage: str = "sqlite3", overwrite: bool = False, progress: Progress | None = None,
                         total: int | None = None) -> int:
-    """(stamp s, xyz (N, 3), ring (N,) or None, T_world_sensor or None) per frame -> PointCloud2 (x, y, z,
-    intensity = 0, ring) on `topic` and ground truth on /ground_truth; returns the number of frames."""
+    """(stamp s, xyz (N, 3), ring (N,) or None, intensity (N,) or None, T_world_sensor or None) per frame ->
+    PointCloud2 (x, y, z, intensity, ring; 0 where not given) on `topic` and ground truth on /ground_truth;
+    returns the number of frames."""
     n = 0
     with BagWriter(out_bag, storage, overwrite) as bag:
-        for stamp_s, xyz, ring, pose in frames:
+        for stamp_s, xyz, ring, intensity, pose in frames:
             stamp = _ns(stamp_s)
             points = np.zeros(len(xyz), dtype=KITTI_POINT_DTYPE)
             points["x"], points["y"], points["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
             if ring is not None:
                 points["ring"] = ring
+            if intensity is not None:
+                points["intensity"] = intensity
             bag.write(topic, POINTCLOUD2, stamp, bag.msgs.pointcloud2(stamp, frame_id, points))
             if pose is not None:
                 bag.write(GROUND_TRUTH_TOPIC, ODOMETRY, stamp, bag.msgs.odometry(stamp, GROUND_TRUTH_FRAME, frame_id, pose))

@@ -44,7 +44,7 @@ def write_scenario_bag(sc: Scenario, bag_path: Path, storage: str, progress: boo
     run = sim.make(sc.kind, frames=sc.frames, seed=seed, sensor=sc.sensor, noise_std=sc.noise_std)
     with ProgressBar(f"simulate {sc.name}", sc.frames, enabled=None if progress else False) as bar:
         if isinstance(run.sensor, sim.Lidar):
-            frames = ((f.stamp, f.data.points, f.data.ring, f.pose) for f in run)
+            frames = ((f.stamp, f.data.points, f.data.ring, f.data.intensity, f.pose) for f in run)
             bags.lidar_frames_to_bag(bag_path, frames, storage=storage, overwrite=True, progress=bar, total=sc.frames)
         else:
             frames = ((f.stamp, f.data, f.pose) for f in run)
