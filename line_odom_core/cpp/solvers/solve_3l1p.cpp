@@ -17,14 +17,13 @@ namespace line_odom {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-constexpr double kDegenerateDeterminant = 1e-10;  // max |det| samples relative to the entries' scale
-constexpr double kMinPairDeterminant = 1e-12;     // |B_i C_j - B_j C_i| relative to the entries' scale
+constexpr double kDegenerateDeterminant = 1e-10;  // max |det| samples relative to its natural scale
+constexpr double kMinPairDeterminant = 1e-12;     // |B_i C_j - B_j C_i| (dimensionless)
 
 // Entry (c, s) = k0 + kc c + ks s.
 struct Affine {
   double k0, kc, ks;
   double at(double c, double s) const { return k0 + kc * c + ks * s; }
-  double magnitude() const { return std::abs(k0) + std::abs(kc) + std::abs(ks); }
 };
 
 struct Row {
@@ -82,12 +81,13 @@ int solve_3l1p(const std::array<PluckerLine, 3>& lines_a, const std::array<Pluck
   if (!solver_input::normalize_plane(plane_a, &pa) || !solver_input::normalize_plane(plane_b, &pb)) return 0;
   const PlaneFrame fa = plane_frame(pa), fb = plane_frame(pb);
   Row rows[3];
-  double scale = 1.0;
+  double scale = 0.0;  // bound on |det| up to a constant: linear in the A column (moments), B and C <= 1
   for (int i = 0; i < 3; ++i) {
     PluckerLine la, lb;
     if (!solver_input::normalize_line(lines_a[i], &la) || !solver_input::normalize_line(lines_b[i], &lb)) return 0;
-    rows[i] = constraint_row(to_canonical(fa, la), to_canonical(fb, lb));
-    scale *= rows[i].A.magnitude() + rows[i].B.magnitude() + rows[i].C.magnitude();
+    const PluckerLine ca = to_canonical(fa, la), cb = to_canonical(fb, lb);
+    rows[i] = constraint_row(ca, cb);
+    scale = std::max(scale, 1.0 + ca.m.norm() + cb.m.norm());
   }
   if (!(scale > 0.0) || !std::isfinite(scale)) return 0;
 
@@ -130,7 +130,6 @@ int solve_3l1p(const std::array<PluckerLine, 3>& lines_a, const std::array<Pluck
 
   int count = 0;
   double accepted[4];
-  const double entry_scale = std::cbrt(scale);
   for (int r = 0; r < root_count; ++r) {
     const double u = roots[r];
     if (!std::isfinite(u)) continue;
@@ -159,7 +158,7 @@ int solve_3l1p(const std::array<PluckerLine, 3>& lines_a, const std::array<Pluck
       }
     }
     const double det2 = B[bi] * C[bj] - B[bj] * C[bi];
-    if (!(std::abs(det2) > kMinPairDeterminant * entry_scale * entry_scale)) continue;
+    if (!(std::abs(det2) > kMinPairDeterminant)) continue;
     const double t1 = (A[bj] * C[bi] - A[bi] * C[bj]) / det2;
     const double t2 = (A[bi] * B[bj] - A[bj] * B[bi]) / det2;
 

@@ -116,6 +116,25 @@ void closest_points(const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3& 
   }
 }
 
+// Orthogonal polar factor of M (the Kabsch rotation for M = H^T) by scaled Newton iteration X <- (g X + X^-T / g)/2.
+// False when M is near singular or det M <= 0 (the caller then uses the SVD with the reflection fix).
+bool polar_rotation(const Mat3& M, Mat3* R) {
+  Mat3 X = M;
+  double det = X.determinant();
+  const double size = X.norm();
+  if (!(det > 1e-9 * size * size * size)) return false;
+  for (int it = 0; it < 30; ++it) {
+    const Mat3 inv_t = X.inverse().transpose();
+    const double g = std::sqrt(std::sqrt(inv_t.squaredNorm() / X.squaredNorm()));  // Frobenius scaling
+    const Mat3 next = 0.5 * (g * X + inv_t / g);
+    const double change = (next - X).cwiseAbs().maxCoeff();
+    X = next;
+    if (change < 1e-15) break;
+  }
+  *R = X;
+  return X.allFinite();
+}
+
 // Rigid transform minimizing sum |R src_i + t - dst_i|^2 (Kabsch); src_centered = src - src_mean.
 RigidTransform kabsch(const std::array<Vec3, 14>& src_centered, const Vec3& src_mean, const std::array<Vec3, 14>& dst) {
   Vec3 dst_mean = Vec3::Zero();
@@ -123,11 +142,13 @@ RigidTransform kabsch(const std::array<Vec3, 14>& src_centered, const Vec3& src_
   dst_mean /= 14.0;
   Mat3 H = Mat3::Zero();
   for (int i = 0; i < 14; ++i) H.noalias() += src_centered[i] * (dst[i] - dst_mean).transpose();
-  const Eigen::JacobiSVD<Mat3> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Mat3 V = svd.matrixV();
-  if ((V * svd.matrixU().transpose()).determinant() < 0.0) V.col(2) = -V.col(2);
   RigidTransform T;
-  T.R = V * svd.matrixU().transpose();
+  if (!polar_rotation(H.transpose(), &T.R)) {
+    const Eigen::JacobiSVD<Mat3> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Mat3 V = svd.matrixV();
+    if ((V * svd.matrixU().transpose()).determinant() < 0.0) V.col(2) = -V.col(2);
+    T.R = V * svd.matrixU().transpose();
+  }
   T.t = dst_mean - T.R * src_mean;
   return T;
 }
@@ -172,7 +193,7 @@ bool alternating_projection(const std::array<Segment, 7>& segments_a, const std:
     }
     Ta = kabsch(centered_a, mean_a, moved_a);  // rigidity projection
     Tb = kabsch(centered_b, mean_b, moved_b);
-    double update = 0.0;
+    double update = 0.0;  // largest endpoint movement (paper §4: iterate until the updates fall under epsilon)
     for (int k = 0; k < 14; ++k) {
       const Vec3 na = Ta.apply(src_a[k]), nb = Tb.apply(src_b[k]);
       update = std::max(update, std::max((na - cur_a[k]).cwiseAbs().maxCoeff(), (nb - cur_b[k]).cwiseAbs().maxCoeff()));

@@ -1,0 +1,76 @@
+"""Solver benchmark (issue 3, DESIGN.md §6): C++ timing loop over seeded noise-free instances, no Python per call.
+
+Prints per solver: median µs per call (median of the repetitions), solutions per call, found-ground-truth rate
+(some solution within 1e-6, max abs 4x4 entry), next to the paper's timings and the authors' later C++.
+
+    .venv/bin/python bench/solvers.py [--instances 20000] [--repetitions 7] [--seed 0] [--markdown]
+"""
+import argparse
+import datetime
+import os
+import platform
+
+from line_odom_core import _core
+
+# paper (Ranade et al. 2019, §7) and the authors' later public C++ (MIT, 2020) timed on this machine at -O3
+PAPER_US = {"1l2p": 0.64, "3l1p": 4.9, "7l": 22000.0}
+AUTHORS_CPP = {"1l2p": "0.55 µs", "3l1p": "3.2 µs, 89.5 % within 1e-6", "7l": "-"}
+TARGET_US = {"1l2p": 0.3, "3l1p": 2.0, "7l": 500.0}
+
+
+def run(args):
+    rows = []
+    plan = [("1l2p", "", args.instances), ("3l1p", "", args.instances),
+            ("7l", "gauss_newton", args.instances_7l),
+            ("7l", "alternating_projection", args.instances_ap)]
+    for solver, method, n in plan:
+        kw = {"method": method} if method else {}
+        if method == "alternating_projection":
+            kw["max_iterations"] = args.ap_max_iterations
+        reps = args.repetitions if method != "alternating_projection" else max(1, min(args.repetitions, 3))
+        r = _core.benchmark_solver(solver, n, reps, args.seed, **kw)
+        rows.append(r)
+    return rows
+
+
+def format_table(rows, markdown):
+    head = ["solver", "instances", "median µs/call", "min µs/call", "solutions/call", "found GT (1e-6)",
+            "p99 error", "iterations", "target µs", "paper µs", "authors' C++"]
+    lines = []
+    for r in rows:
+        name = r["solver"].upper() + (f" {r['method']}" if r["method"] else "")
+        lines.append([name, str(r["instances"]), f"{r['median_us']:.3f}", f"{r['min_us']:.3f}",
+                      f"{r['solutions_per_call']:.3f}", f"{100 * r['found_rate']:.2f} %", f"{r['p99_error']:.1e}",
+                      f"{r['mean_iterations']:.1f}" if r["solver"] == "7l" else "-",
+                      f"{TARGET_US[r['solver']]:g}" if r["method"] != "alternating_projection" else "-",
+                      f"{PAPER_US[r['solver']]:g}", AUTHORS_CPP[r["solver"]]])
+    if markdown:
+        out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        out += ["| " + " | ".join(line) + " |" for line in lines]
+        return "\n".join(out)
+    widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(head)]
+    fmt = "  ".join("{:<%d}" % w for w in widths)
+    return "\n".join([fmt.format(*head), fmt.format(*("-" * w for w in widths))] + [fmt.format(*l) for l in lines])
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--instances", type=int, default=20000, help="instances for 1L2P and 3L1P")
+    parser.add_argument("--instances-7l", type=int, default=2000, help="instances for 7L Gauss-Newton")
+    parser.add_argument("--instances-ap", type=int, default=100, help="instances for 7L alternating projection")
+    parser.add_argument("--ap-max-iterations", type=int, default=30000)
+    parser.add_argument("--repetitions", type=int, default=7)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--markdown", action="store_true")
+    args = parser.parse_args()
+    rows = run(args)
+    info = _core.build_info()
+    print(f"# solver benchmark {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, "
+          f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {info['compiler']} {info['flags']}, "
+          f"seed {args.seed}")
+    print("# 7L starts from the truth moved by up to 5 deg and 0.5 m; rotations uniform; scene 10 m; t up to 2 m")
+    print(format_table(rows, args.markdown))
+
+
+if __name__ == "__main__":
+    main()
