@@ -368,6 +368,12 @@ def test_degenerate_scenes_structure():
 
     assert all(len(f.data) == 0 for f in sim.simulate("far", frames=3))
 
+    noisy = next(sim.simulate("street", frames=1, sensor="vlp16", noise_std=0.5))
+    clean = next(sim.simulate("street", frames=1, sensor="vlp16"))
+    assert np.all(np.isfinite(noisy.data.points)) and np.all(noisy.data.range[~np.isnan(noisy.data.range)] > 0)
+    both = ~np.isnan(noisy.data.range) & ~np.isnan(clean.data.range)
+    assert (noisy.data.range[both] - clean.data.range[both]).std() == pytest.approx(0.5, rel=0.05)
+
     still = list(sim.simulate("street", frames=3, speed=0.0, sensor="vlp16"))
     np.testing.assert_array_equal(still[0].data.organized, still[2].data.organized)
     np.testing.assert_array_equal(still[0].pose, still[2].pose)
