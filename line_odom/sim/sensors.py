@@ -12,7 +12,6 @@ import dataclasses
 import functools
 
 import numpy as np
-
 from scipy.spatial.transform import Rotation
 
 from line_odom.sim.scene import _BOX_EDGES, RayGrid, Scene, _check_pose, cast, cast_columns, rotate
