@@ -16,6 +16,8 @@ struct RangeImage {
   int cols = 0;
   std::vector<Vec3> points;
   std::vector<std::uint8_t> valid;
+  // Index of the input point stored in each cell (-1 for holes); empty when the input was already organized.
+  std::vector<std::int32_t> source_index;
 
   const Vec3& at(int r, int c) const { return points[static_cast<size_t>(r) * cols + c]; }
   bool is_valid(int r, int c) const { return valid[static_cast<size_t>(r) * cols + c] != 0; }
@@ -26,6 +28,8 @@ struct LineFeature {
   PluckerLine line;         // the fitted line
   Vec3 normal = Vec3::Zero();  // normal of the surface the line lies on (from H/V intersections), 0 if unknown
   int cluster = -1;         // normal cluster 0..2, -1 if unknown
+  int normal_support = 0;   // crossings whose normals agree with `normal` (0 if unknown)
+  int plane = -1;           // index into ScanFeatures::planes of the plane the line lies on, -1 if none
   double rms = 0.0;         // fit residual (m)
   int support = 0;          // inlier points
   int scan_index = 0;       // row (H-line) or column (V-line) of the range image

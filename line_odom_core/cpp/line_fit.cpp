@@ -1,0 +1,459 @@
+#include "line_fit.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace line_odom {
+
+namespace {
+
+constexpr double kDeg = 3.14159265358979323846 / 180.0;
+
+// Points of one scan line in scan order, with their positions along it, their split thresholds and the
+// prefix sums of their moments (the moments of any stretch in O(1)).
+struct ScanBuffer {
+  std::vector<int> cell;
+  std::vector<int> pos;
+  std::vector<Vec3> p;
+  std::vector<double> x, y, z;        // p as structure of arrays
+  std::vector<double> tau;
+  std::vector<double> inv_tau2;       // 1 / tau^2
+  std::vector<PointMoments> prefix;   // prefix[k] = moments of points [0, k)
+
+  void clear() {
+    cell.clear();
+    pos.clear();
+    p.clear();
+    x.clear();
+    y.clear();
+    z.clear();
+    tau.clear();
+    inv_tau2.clear();
+    prefix.assign(1, PointMoments());
+  }
+  int size() const { return static_cast<int>(p.size()); }
+  PointMoments stretch(int a, int b) const {  // points [a, b]
+    PointMoments m;
+    m.count = prefix[b + 1].count - prefix[a].count;
+    m.sum = prefix[b + 1].sum - prefix[a].sum;
+    m.outer = prefix[b + 1].outer - prefix[a].outer;
+    return m;
+  }
+};
+
+// A line is a stretch [first, last] of the scan line minus the stray points skipped while merging.
+struct CandidateLine {
+  int first = 0, last = 0;
+  int skipped_begin = 0, skipped_end = 0;  // range in ScanLineFitter::skipped_
+  PointMoments moments;
+  LineLeastSquares fit;
+  bool accepted = false;
+};
+
+double residual(const LineLeastSquares& f, const Vec3& p) { return (p - f.centroid).cross(f.direction).norm(); }
+
+// Squared distance to the line over the squared threshold: > 1 means outside.
+double excess2(const LineLeastSquares& f, const ScanBuffer& buf, int k) {
+  return (buf.p[k] - f.centroid).cross(f.direction).squaredNorm() * buf.inv_tau2[k];
+}
+
+void remove_point(PointMoments* m, const Vec3& p) {
+  --m->count;
+  m->sum -= p;
+  m->outer.noalias() -= p * p.transpose();
+}
+
+class ScanLineFitter {
+  static constexpr int kEndChecks = 4;
+
+ public:
+  explicit ScanLineFitter(const LineFitConfig& cfg)
+      : cfg_(cfg), sin_min_incidence_(std::sin(cfg.min_incidence_deg * kDeg)) {}
+
+  // Fits the lines of the buffered scan line and appends them to `out`, labelling their cells.
+  void fit(const ScanBuffer& buf, int min_points, int scan_index, std::vector<LineFeature>* out,
+           std::vector<std::int32_t>* labels) {
+    candidates_.clear();
+    skipped_.clear();
+    const int n = buf.size();
+    is_skipped_.assign(n, 0);
+    int run_start = 0;
+    for (int j = 1; j <= n; ++j) {
+      if (j == n || breaks_between(buf, j - 1, j)) {
+        fit_run(buf, run_start, j - 1, min_points);
+        run_start = j;
+      }
+    }
+    for (auto& c : candidates_) c.accepted = acceptable(buf, c, min_points);
+    resolve_shared_points(buf, min_points);
+    for (const auto& c : candidates_) {
+      if (!c.accepted) continue;
+      emit(buf, c, scan_index, out, labels);
+    }
+  }
+
+ private:
+  bool breaks_between(const ScanBuffer& buf, int i, int j) const {
+    if (buf.pos[j] - buf.pos[i] - 1 > cfg_.max_gap) return true;
+    const Vec3 step = buf.p[j] - buf.p[i];
+    const double len = step.norm();
+    if (len <= std::max(buf.tau[i], buf.tau[j])) return false;  // within noise: never a jump
+    const Vec3 ray = (buf.p[i] + buf.p[j]).normalized();
+    return step.cross(ray).norm() < sin_min_incidence_ * len;
+  }
+
+  // Douglas-Peucker split of run [s, e] into pieces sharing their end points, then greedy merging.
+  void fit_run(const ScanBuffer& buf, int s, int e, int min_points) {
+    if (e - s + 1 < std::max(2, min_points)) return;
+    pieces_.clear();
+    stack_.clear();
+    stack_.emplace_back(s, e);
+    while (!stack_.empty()) {
+      const auto [a, b] = stack_.back();
+      stack_.pop_back();
+      int split = -1;
+      if (b - a >= 2) {
+        split = farthest_beyond_threshold(buf, a, b);
+      }
+      if (split < 0) {
+        pieces_.emplace_back(a, b);
+      } else {
+        stack_.emplace_back(split, b);
+        stack_.emplace_back(a, split);
+      }
+    }
+
+    const int np = static_cast<int>(pieces_.size());
+    int i = 0;
+    CandidateLine cur;
+    start_line(buf, &cur, pieces_[0].first, pieces_[0].second);
+    while (true) {
+      bool merged = false;
+      for (int j = i + 1; j < np; ++j) {
+        const int first_new = std::max(pieces_[j].first, cur.last + 1);
+        if (first_new - cur.last - 1 > cfg_.max_outliers) break;
+        if (try_merge(buf, &cur, first_new, pieces_[j].second)) {
+          i = j;
+          merged = true;
+          break;
+        }
+      }
+      if (merged) continue;
+      if (!fitted_) cur.fit = fit_line(cur.moments, chord_direction(buf, cur.first, cur.last));
+      candidates_.push_back(cur);
+      if (++i >= np) break;
+      start_line(buf, &cur, pieces_[i].first, pieces_[i].second);
+    }
+  }
+
+  // The fit of a new line is only needed once it is long enough for the cheap rejection in try_merge.
+  void start_line(const ScanBuffer& buf, CandidateLine* line, int a, int b) {
+    line->first = a;
+    line->last = b;
+    line->skipped_begin = line->skipped_end = static_cast<int>(skipped_.size());
+    line->moments = buf.stretch(a, b);
+    line->accepted = false;
+    fitted_ = false;
+  }
+
+  // Index in (a, b) of the point farthest from the chord a-b relative to its threshold, -1 if all are within.
+  // Structure-of-arrays loop that the compiler vectorizes; the arg-max runs over the ratios afterwards.
+  int farthest_beyond_threshold(const ScanBuffer& buf, int a, int b) {
+    const double ax = buf.x[a], ay = buf.y[a], az = buf.z[a];
+    double cx = buf.x[b] - ax, cy = buf.y[b] - ay, cz = buf.z[b] - az;
+    const double len2 = cx * cx + cy * cy + cz * cz;
+    const bool degenerate = !(len2 > 1e-24);
+    const double inv_len2 = degenerate ? 0.0 : 1.0 / len2;
+    const int n = b - a - 1;
+    ratio_.resize(n);
+    const double* X = buf.x.data() + a + 1;
+    const double* Y = buf.y.data() + a + 1;
+    const double* Z = buf.z.data() + a + 1;
+    const double* W = buf.inv_tau2.data() + a + 1;
+    double* R = ratio_.data();
+    if (degenerate) {
+      for (int i = 0; i < n; ++i) {
+        const double rx = X[i] - ax, ry = Y[i] - ay, rz = Z[i] - az;
+        R[i] = (rx * rx + ry * ry + rz * rz) * W[i];
+      }
+    } else {
+      for (int i = 0; i < n; ++i) {
+        const double rx = X[i] - ax, ry = Y[i] - ay, rz = Z[i] - az;
+        const double ux = ry * cz - rz * cy, uy = rz * cx - rx * cz, uz = rx * cy - ry * cx;
+        R[i] = (ux * ux + uy * uy + uz * uz) * (inv_len2 * W[i]);
+      }
+    }
+    double worst = 1.0;  // squared distance / squared threshold
+    int split = -1;
+    for (int i = 0; i < n; ++i)
+      if (R[i] > worst) {
+        worst = R[i];
+        split = a + 1 + i;
+      }
+    return split;
+  }
+
+  Vec3 chord_direction(const ScanBuffer& buf, int a, int b) const {
+    const Vec3 d = buf.p[b] - buf.p[a];
+    const double n = d.norm();
+    return n > 1e-12 ? Vec3(d / n) : Vec3::UnitX();
+  }
+
+  // Adds points [a, b] (skipping the stray points between the line and a) when the least-squares line of the
+  // union keeps every point within its threshold. The refit moves the line by an amount affine along it, so
+  // among the old inliers (all within the threshold of the old line) only those near the two ends are checked.
+  bool try_merge(const ScanBuffer& buf, CandidateLine* line, int a, int b) {
+    const int count = line->moments.count;
+    // Cheap rejection against the current line when it is long enough to extrapolate.
+    if (count >= 2 * (b - a + 1) && count >= 8) {
+      if (!fitted_) {
+        line->fit = fit_line(line->moments, chord_direction(buf, line->first, line->last));
+        fitted_ = true;
+      }
+      for (int k = a; k <= b; ++k)
+        if (excess2(line->fit, buf, k) > 4.0) return false;
+    }
+    PointMoments m = line->moments;
+    m.add(buf.stretch(a, b));
+    const LineLeastSquares f = fit_line(m, chord_direction(buf, line->first, b));
+    for (int k = a; k <= b; ++k)
+      if (excess2(f, buf, k) > 1.0) return false;
+    int checked = 0;
+    for (int k = line->first; k <= line->last && checked < kEndChecks; ++k)
+      if (!is_skipped_[k]) {
+        if (excess2(f, buf, k) > 1.0) return false;
+        ++checked;
+      }
+    checked = 0;
+    for (int k = line->last; k >= line->first && checked < kEndChecks; --k)
+      if (!is_skipped_[k]) {
+        if (excess2(f, buf, k) > 1.0) return false;
+        ++checked;
+      }
+    for (int k = line->last + 1; k < a; ++k) {
+      skipped_.push_back(k);
+      is_skipped_[k] = 1;
+    }
+    line->skipped_end = static_cast<int>(skipped_.size());
+    line->last = b;
+    line->moments = m;
+    line->fit = f;
+    fitted_ = true;
+    return true;
+  }
+
+  // Moments of the current stretch minus its skipped points, and the refit from them.
+  void refit(const ScanBuffer& buf, CandidateLine* c) const {
+    PointMoments m = buf.stretch(c->first, c->last);
+    for (int i = c->skipped_begin; i < c->skipped_end; ++i) {
+      const int k = skipped_[i];
+      if (k >= c->first && k <= c->last) remove_point(&m, buf.p[k]);
+    }
+    c->moments = m;
+    c->fit = fit_line(m, c->fit.direction);
+  }
+
+  int next_inlier(int k, int step) const {
+    k += step;
+    while (k >= 0 && k < static_cast<int>(is_skipped_.size()) && is_skipped_[k]) k += step;
+    return k;
+  }
+
+  // Trims end points beyond the threshold, then applies the support / rms / length tests.
+  bool acceptable(const ScanBuffer& buf, CandidateLine& c, int min_points) const {
+    if (c.moments.count < min_points) return false;
+    for (int round = 0; round < 3; ++round) {
+      int lo = c.first, hi = c.last;
+      while (hi > lo && excess2(c.fit, buf, lo) > 1.0) lo = next_inlier(lo, 1);
+      while (hi > lo && excess2(c.fit, buf, hi) > 1.0) hi = next_inlier(hi, -1);
+      if (lo == c.first && hi == c.last) break;
+      if (hi <= lo) return false;
+      c.first = lo;
+      c.last = hi;
+      refit(buf, &c);
+      if (c.moments.count < min_points) return false;
+    }
+    const double range = c.fit.centroid.norm();
+    if (!(c.fit.rms <= cfg_.max_rms * cfg_.threshold_scale(range))) return false;
+    const Vec3& d = c.fit.direction;
+    const double t0 = (buf.p[c.first] - c.fit.centroid).dot(d);
+    const double t1 = (buf.p[c.last] - c.fit.centroid).dot(d);
+    return std::abs(t1 - t0) >= cfg_.min_length;
+  }
+
+  // A corner point kept by two neighbouring lines goes to the one it fits better.
+  void resolve_shared_points(const ScanBuffer& buf, int min_points) {
+    int prev = -1;
+    for (int i = 0; i < static_cast<int>(candidates_.size()); ++i) {
+      if (!candidates_[i].accepted) continue;
+      if (prev >= 0) {
+        CandidateLine& a = candidates_[prev];
+        CandidateLine& b = candidates_[i];
+        if (a.last == b.first) {
+          const int k = b.first;
+          const double ra = residual(a.fit, buf.p[k]), rb = residual(b.fit, buf.p[k]);
+          CandidateLine& loser = ra <= rb ? b : a;
+          if (&loser == &b) {
+            b.first = next_inlier(b.first, 1);
+          } else {
+            a.last = next_inlier(a.last, -1);
+          }
+          if (loser.first < loser.last) {
+            refit(buf, &loser);
+            loser.accepted = acceptable(buf, loser, min_points);
+          } else {
+            loser.accepted = false;
+          }
+        }
+      }
+      if (candidates_[i].accepted) prev = i;
+    }
+  }
+
+  void emit(const ScanBuffer& buf, const CandidateLine& c, int scan_index, std::vector<LineFeature>* out,
+            std::vector<std::int32_t>* labels) const {
+    const Vec3& d = c.fit.direction;
+    const Vec3& o = c.fit.centroid;
+    const Vec3& p0 = buf.p[c.first];
+    const Vec3& p1 = buf.p[c.last];
+    // Direction from the first to the last inlier along the scan line.
+    const Vec3 dir = (p1 - p0).dot(d) >= 0.0 ? d : Vec3(-d);
+    LineFeature f;
+    f.segment.a = o + dir * (p0 - o).dot(dir);
+    f.segment.b = o + dir * (p1 - o).dot(dir);
+    f.line.d = dir;
+    f.line.m = o.cross(dir);
+    f.rms = c.fit.rms;
+    f.support = c.moments.count;
+    f.scan_index = scan_index;
+    f.first = buf.pos[c.first];
+    f.last = buf.pos[c.last];
+    const auto id = static_cast<std::int32_t>(out->size());
+    for (int k = c.first; k <= c.last; ++k)
+      if (!is_skipped_[k]) (*labels)[buf.cell[k]] = id;
+    out->push_back(f);
+  }
+
+  const LineFitConfig& cfg_;
+  const double sin_min_incidence_;
+  std::vector<std::pair<int, int>> stack_, pieces_;
+  std::vector<CandidateLine> candidates_;
+  std::vector<int> skipped_;
+  std::vector<std::uint8_t> is_skipped_;
+  std::vector<double> ratio_;
+  bool fitted_ = false;
+};
+
+void fill_buffer(const RangeImage& img, const LineFitConfig& cfg, bool horizontal, int index, ScanBuffer* buf) {
+  buf->clear();
+  const int n = horizontal ? img.cols : img.rows;
+  for (int k = 0; k < n; ++k) {
+    const int cell = horizontal ? index * img.cols + k : k * img.cols + index;
+    if (!img.valid[cell]) continue;
+    const Vec3& p = img.points[cell];
+    buf->cell.push_back(cell);
+    buf->pos.push_back(k);
+    buf->p.push_back(p);
+    buf->x.push_back(p.x());
+    buf->y.push_back(p.y());
+    buf->z.push_back(p.z());
+    const double tau = cfg.split_distance * cfg.threshold_scale(p.norm());
+    buf->tau.push_back(tau);
+    buf->inv_tau2.push_back(1.0 / (tau * tau));
+    PointMoments m = buf->prefix.back();
+    m.add(p);
+    buf->prefix.push_back(m);
+  }
+}
+
+}  // namespace
+
+void LineFitConfig::validate() const {
+  auto fail = [](const std::string& field, const std::string& what) {
+    throw std::invalid_argument("lines." + field + ": " + what);
+  };
+  if (min_points_h < 2) fail("min_points_h", "expected >= 2");
+  if (min_points_v < 2) fail("min_points_v", "expected >= 2");
+  if (!(min_length >= 0.0)) fail("min_length", "expected >= 0");
+  if (!(split_distance > 0.0)) fail("split_distance", "expected > 0");
+  if (!(max_rms > 0.0)) fail("max_rms", "expected > 0");
+  if (!(threshold_per_m >= 0.0)) fail("threshold_per_m", "expected >= 0");
+  if (!(threshold_per_m2 >= 0.0)) fail("threshold_per_m2", "expected >= 0");
+  if (max_gap < 0) fail("max_gap", "expected >= 0");
+  if (!(min_incidence_deg >= 0.0 && min_incidence_deg < 90.0)) fail("min_incidence_deg", "expected in [0, 90)");
+  if (max_outliers < 0) fail("max_outliers", "expected >= 0");
+}
+
+Mat3 PointMoments::covariance() const {
+  if (count == 0) return Mat3::Zero();
+  const Vec3 c = mean();
+  return outer / count - c * c.transpose();
+}
+
+LineLeastSquares fit_line(const PointMoments& moments, const Vec3& seed, int iterations) {
+  LineLeastSquares f;
+  f.count = moments.count;
+  if (moments.count == 0) return f;
+  const double inv_n = 1.0 / moments.count;
+  f.centroid = moments.sum * inv_n;
+  if (moments.count == 1) return f;
+  // Symmetric covariance from its upper triangle.
+  const Vec3& c = f.centroid;
+  const Mat3& o = moments.outer;
+  const double xx = o(0, 0) * inv_n - c.x() * c.x(), xy = o(0, 1) * inv_n - c.x() * c.y();
+  const double xz = o(0, 2) * inv_n - c.x() * c.z(), yy = o(1, 1) * inv_n - c.y() * c.y();
+  const double yz = o(1, 2) * inv_n - c.y() * c.z(), zz = o(2, 2) * inv_n - c.z() * c.z();
+  auto apply = [&](const Vec3& v) {
+    return Vec3(xx * v.x() + xy * v.y() + xz * v.z(), xy * v.x() + yy * v.y() + yz * v.z(),
+                xz * v.x() + yz * v.y() + zz * v.z());
+  };
+  // Unnormalized iterations (the scale grows like lambda_max^k, harmless in double), one normalization.
+  Vec3 d = seed;
+  for (int it = 0; it < iterations; ++it) d = apply(d);
+  const double norm2 = d.squaredNorm();
+  const double trace = xx + yy + zz;
+  if (!(norm2 > 1e-300) || !std::isfinite(norm2)) {
+    if (iterations > 0 && seed.squaredNorm() > 0.0 && trace > 0.0) {  // seed orthogonal to the spread
+      const int k = xx >= yy ? (xx >= zz ? 0 : 2) : (yy >= zz ? 1 : 2);
+      return fit_line(moments, Vec3::Unit(k), iterations);
+    }
+    return f;  // all points equal
+  }
+  d /= std::sqrt(norm2);
+  f.direction = d;
+  f.rms = std::sqrt(std::max(0.0, trace - d.dot(apply(d))));
+  return f;
+}
+
+LineLeastSquares fit_line(const PointMoments& moments) {
+  const Mat3 C = moments.covariance();
+  int k = 0;
+  C.diagonal().maxCoeff(&k);
+  return fit_line(moments, C.col(k), 6);
+}
+
+ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
+  config.validate();
+  const size_t cells = static_cast<size_t>(image.rows) * image.cols;
+  if (image.rows < 0 || image.cols < 0 || image.points.size() != cells || image.valid.size() != cells)
+    throw std::invalid_argument("range image: points/valid sizes do not match rows x cols");
+  ScanLines out;
+  out.h_label.assign(cells, -1);
+  out.v_label.assign(cells, -1);
+  ScanLineFitter fitter(config);
+  ScanBuffer buf;
+  buf.p.reserve(std::max(image.rows, image.cols));
+  for (int r = 0; r < image.rows; ++r) {
+    fill_buffer(image, config, true, r, &buf);
+    fitter.fit(buf, config.min_points_h, r, &out.h_lines, &out.h_label);
+  }
+  for (int c = 0; c < image.cols; ++c) {
+    fill_buffer(image, config, false, c, &buf);
+    fitter.fit(buf, config.min_points_v, c, &out.v_lines, &out.v_label);
+  }
+  return out;
+}
+
+}  // namespace line_odom

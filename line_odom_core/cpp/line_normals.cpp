@@ -1,0 +1,217 @@
+#include "line_normals.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace line_odom {
+
+namespace {
+
+constexpr double kDeg = 3.14159265358979323846 / 180.0;
+
+// Compressed lists of the crossings of each line.
+struct CrossingLists {
+  std::vector<int> offset;  // size lines + 1
+  std::vector<int> items;   // crossing indices
+};
+
+CrossingLists build_lists(const std::vector<LineCrossing>& crossings, size_t lines, bool horizontal) {
+  CrossingLists l;
+  l.offset.assign(lines + 1, 0);
+  for (const auto& x : crossings) ++l.offset[(horizontal ? x.h : x.v) + 1];
+  for (size_t i = 0; i < lines; ++i) l.offset[i + 1] += l.offset[i];
+  l.items.resize(crossings.size());
+  std::vector<int> fill(l.offset.begin(), l.offset.end() - 1);
+  for (size_t k = 0; k < crossings.size(); ++k) {
+    const auto& x = crossings[k];
+    l.items[fill[horizontal ? x.h : x.v]++] = static_cast<int>(k);
+  }
+  return l;
+}
+
+void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLists& lists, const NormalConfig& cfg,
+                   std::vector<LineFeature>* lines) {
+  const double cos_wide = std::cos(std::min(90.0, 2.0 * cfg.max_deviation_deg) * kDeg);
+  const double cos_dev = std::cos(cfg.max_deviation_deg * kDeg);
+  for (size_t i = 0; i < lines->size(); ++i) {
+    LineFeature& f = (*lines)[i];
+    f.normal.setZero();
+    f.normal_support = 0;
+    const int b = lists.offset[i], e = lists.offset[i + 1];
+    if (e == b) continue;
+    Vec3 mean = Vec3::Zero();
+    for (int k = b; k < e; ++k) mean += crossings[lists.items[k]].normal;
+    if (mean.norm() < 1e-9) continue;
+    mean.normalize();
+    int agree = 0;
+    for (double cos_limit : {cos_wide, cos_dev}) {
+      Vec3 next = Vec3::Zero();
+      agree = 0;
+      for (int k = b; k < e; ++k) {
+        const Vec3& n = crossings[lists.items[k]].normal;
+        if (n.dot(mean) >= cos_limit) {
+          next += n;
+          ++agree;
+        }
+      }
+      if (agree == 0 || next.norm() < 1e-9) break;
+      mean = next.normalized();
+    }
+    if (agree < cfg.min_crossings || agree < cfg.min_agreement * (e - b)) continue;
+    f.normal = mean;
+    f.normal_support = agree;
+  }
+}
+
+// Principal axis of the normals within cos_limit of `axis` (sign-folded); `axis` itself when none.
+Vec3 refine_axis(const std::vector<Vec3>& normals, const Vec3& axis, double cos_limit) {
+  Mat3 scatter = Mat3::Zero();
+  int n = 0;
+  for (const auto& v : normals)
+    if (std::abs(v.dot(axis)) >= cos_limit) {
+      scatter.noalias() += v * v.transpose();
+      ++n;
+    }
+  if (n == 0) return axis;
+  Eigen::SelfAdjointEigenSolver<Mat3> eig;
+  eig.computeDirect(scatter);
+  Vec3 out = eig.eigenvectors().col(2).normalized();
+  return out.dot(axis) < 0.0 ? Vec3(-out) : out;
+}
+
+// Deterministic sign: the largest component positive.
+Vec3 canonical_sign(const Vec3& v) {
+  int k = 0;
+  v.cwiseAbs().maxCoeff(&k);
+  return v(k) < 0.0 ? Vec3(-v) : v;
+}
+
+}  // namespace
+
+void NormalConfig::validate() const {
+  auto fail = [](const std::string& field, const std::string& what) {
+    throw std::invalid_argument("normals." + field + ": " + what);
+  };
+  if (!(min_crossing_angle_deg >= 0.0 && min_crossing_angle_deg < 90.0))
+    fail("min_crossing_angle_deg", "expected in [0, 90)");
+  if (!(max_deviation_deg > 0.0 && max_deviation_deg <= 90.0)) fail("max_deviation_deg", "expected in (0, 90]");
+  if (min_crossings < 1) fail("min_crossings", "expected >= 1");
+  if (!(min_agreement >= 0.0 && min_agreement <= 1.0)) fail("min_agreement", "expected in [0, 1]");
+  if (!(vote_angle_deg > 0.0 && vote_angle_deg < 90.0)) fail("vote_angle_deg", "expected in (0, 90)");
+  if (!(min_separation_deg > 0.0 && min_separation_deg <= 90.0)) fail("min_separation_deg", "expected in (0, 90]");
+  if (!(max_cluster_angle_deg > 0.0 && max_cluster_angle_deg <= 90.0))
+    fail("max_cluster_angle_deg", "expected in (0, 90]");
+  if (!(min_cluster_fraction >= 0.0 && min_cluster_fraction <= 1.0)) fail("min_cluster_fraction", "expected in [0, 1]");
+}
+
+std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLines& lines,
+                                         const NormalConfig& config) {
+  std::vector<LineCrossing> out;
+  const double sin_min = std::sin(config.min_crossing_angle_deg * kDeg);
+  const int cells = image.rows * image.cols;
+  for (int cell = 0; cell < cells; ++cell) {
+    const int h = lines.h_label[cell], v = lines.v_label[cell];
+    if (h < 0 || v < 0) continue;
+    Vec3 n = lines.h_lines[h].line.d.cross(lines.v_lines[v].line.d);
+    const double s = n.norm();
+    if (s < sin_min) continue;
+    n /= s;
+    if (n.dot(image.points[cell]) > 0.0) n = -n;
+    out.push_back({h, v, cell, n});
+  }
+  return out;
+}
+
+void assign_line_normals(const std::vector<LineCrossing>& crossings, const NormalConfig& config,
+                         ScanLines* lines) {
+  robust_normal(crossings, build_lists(crossings, lines->h_lines.size(), true), config, &lines->h_lines);
+  robust_normal(crossings, build_lists(crossings, lines->v_lines.size(), false), config, &lines->v_lines);
+}
+
+std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector<LineFeature>* h_lines,
+                                         std::vector<LineFeature>* v_lines) {
+  std::vector<LineFeature*> members;
+  std::vector<Vec3> normals;
+  for (auto* list : {h_lines, v_lines})
+    for (auto& f : *list) {
+      f.cluster = -1;
+      if (f.normal.squaredNorm() > 0.25) {
+        members.push_back(&f);
+        normals.push_back(f.normal.normalized());
+      }
+    }
+  std::array<Vec3, 3> dirs{Vec3::UnitX(), Vec3::UnitY(), Vec3::UnitZ()};
+  const size_t n = normals.size();
+  if (n == 0) return dirs;
+
+  const double cos_vote = std::cos(config.vote_angle_deg * kDeg);
+  const double cos_sep = std::cos(config.min_separation_deg * kDeg);
+  const size_t cand_stride = std::max<size_t>(1, n / 96);
+  const size_t vote_stride = std::max<size_t>(1, n / 2000);
+  auto separated = [&](const Vec3& c, int found) {
+    for (int k = 0; k < found; ++k)
+      if (std::abs(c.dot(dirs[k])) > cos_sep) return false;
+    return true;
+  };
+  int found = 0;
+  for (; found < 3; ++found) {
+    int best_votes = 0;
+    Vec3 best = Vec3::Zero();
+    for (size_t i = 0; i < n; i += cand_stride) {
+      const Vec3& c = normals[i];
+      if (!separated(c, found)) continue;
+      int votes = 0;
+      for (size_t j = 0; j < n; j += vote_stride) votes += std::abs(normals[j].dot(c)) >= cos_vote;
+      if (votes > best_votes) {
+        best_votes = votes;
+        best = c;
+      }
+    }
+    const double voters = static_cast<double>((n + vote_stride - 1) / vote_stride);
+    if (best_votes == 0 || best_votes < config.min_cluster_fraction * voters) break;
+    for (int it = 0; it < 3; ++it) best = refine_axis(normals, best, cos_vote);
+    if (!separated(best, found)) break;
+    dirs[found] = best;
+  }
+  if (found == 0) return dirs;
+  if (found == 1) {
+    // Any direction perpendicular to the first: the axis least aligned with it, orthogonalized.
+    int k = 0;
+    dirs[0].cwiseAbs().minCoeff(&k);
+    dirs[1] = dirs[0].cross(Vec3::Unit(k)).normalized();
+  }
+  if (found <= 2) dirs[2] = dirs[0].cross(dirs[1]).normalized();
+
+  const double cos_member = std::cos(config.max_cluster_angle_deg * kDeg);
+  auto assign = [&]() {
+    for (size_t i = 0; i < n; ++i) {
+      int best = -1;
+      double best_cos = cos_member - 1e-12;
+      for (int k = 0; k < 3; ++k) {
+        const double c = std::abs(normals[i].dot(dirs[k]));
+        if (c >= best_cos) {
+          best_cos = c;
+          best = k;
+        }
+      }
+      members[i]->cluster = best;
+    }
+  };
+  assign();
+  // Refine each direction on its own members near it, then reassign.
+  const double cos_refine = std::cos(std::min(89.0, 2.0 * config.vote_angle_deg) * kDeg);
+  for (int k = 0; k < found; ++k) {
+    std::vector<Vec3> own;
+    for (size_t i = 0; i < n; ++i)
+      if (members[i]->cluster == k) own.push_back(normals[i]);
+    dirs[k] = refine_axis(own, dirs[k], cos_refine);
+  }
+  for (auto& d : dirs) d = canonical_sign(d);
+  assign();
+  return dirs;
+}
+
+}  // namespace line_odom
