@@ -7,8 +7,13 @@ Prints per solver: median µs per call (median of the repetitions), solutions pe
 """
 import argparse
 import datetime
+import glob
 import os
 import platform
+import subprocess
+import sys
+import sysconfig
+import tempfile
 
 from line_odom_core import _core
 
@@ -31,6 +36,31 @@ def run(args):
         r = _core.benchmark_solver(solver, n, reps, args.seed, **kw)
         rows.append(r)
     return rows
+
+
+ALLOCATION_SYMBOLS = ("malloc", "calloc", "realloc", "free", "operator new", "operator delete")
+
+
+def allocation_symbols():
+    """Compiles each solver translation unit alone (-O3, as the module) and lists the allocation functions it
+    references: none referenced = no heap allocation possible in a solver call (all Eigen code is inlined)."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    cpp = os.path.join(root, "line_odom_core", "cpp")
+    eigen = next((d for d in ["/usr/include/eigen3", "/usr/local/include/eigen3"] if os.path.isdir(d)), None)
+    cxx = sysconfig.get_config_var("CXX") or "g++"
+    if eigen is None:
+        return {"(Eigen headers not found)": []}
+    found = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for src in sorted(glob.glob(os.path.join(cpp, "solvers", "*.cpp"))):
+            obj = os.path.join(tmp, os.path.basename(src) + ".o")
+            subprocess.run([cxx.split()[0], "-std=c++17", "-O3", "-DNDEBUG", "-I", cpp, "-I", eigen, "-c", src, "-o", obj],
+                           check=True)
+            undefined = subprocess.run(["nm", "-C", "--undefined-only", obj], check=True, capture_output=True,
+                                       text=True).stdout.split("\n")
+            found[os.path.basename(src)] = sorted({line.split(" U ")[-1].strip() for line in undefined
+                                                   if any(s in line for s in ALLOCATION_SYMBOLS)})
+    return found
 
 
 def format_table(rows, markdown):
@@ -62,6 +92,8 @@ def main():
     parser.add_argument("--repetitions", type=int, default=7)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--markdown", action="store_true")
+    parser.add_argument("--no-allocation-check", action="store_true",
+                        help="skip compiling the solver sources to list the allocation functions they reference")
     args = parser.parse_args()
     rows = run(args)
     info = _core.build_info()
@@ -70,6 +102,14 @@ def main():
           f"seed {args.seed}")
     print("# 7L starts from the truth moved by up to 5 deg and 0.5 m; rotations uniform; scene 10 m; t up to 2 m")
     print(format_table(rows, args.markdown))
+    if not args.no_allocation_check:
+        try:
+            found = allocation_symbols()
+        except (OSError, subprocess.CalledProcessError) as exc:
+            print(f"# allocation check skipped: {exc}", file=sys.stderr)
+        else:
+            for name, symbols in found.items():
+                print(f"# {name}: references {', '.join(symbols) if symbols else 'no allocation function'}")
 
 
 if __name__ == "__main__":

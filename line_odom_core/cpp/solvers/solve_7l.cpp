@@ -23,6 +23,7 @@ constexpr double kMinSegmentLength = 1e-9;
 constexpr double kMinLineSine = 1e-6;         // |d_a x d_b'| floor of the signed distance's denominator
 constexpr double kMinSingularRatio = 1e-7;    // sigma_min / sigma_max of the Jacobian: below it, degenerate
 constexpr double kMaxDamping = 1e10;
+constexpr double kMinRelativeDecrease = 1e-8;  // an accepted step gaining less than this: converged
 
 struct LinePairs {
   std::array<PluckerLine, 7> a, b;
@@ -79,12 +80,13 @@ bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solv
     const double cost_new = r_new.squaredNorm();
     const double step_size = step.cwiseAbs().maxCoeff();
     if (cost_new <= cost) {
+      const bool stalled = cost - cost_new <= kMinRelativeDecrease * cost;  // at a least-squares minimum
       T = T_new;
       cost = cost_new;
       r = r_new;
       residuals(lines, T, &r, &J);
       damping = std::max(damping * 0.1, 1e-12);
-      if (step_size < options.tolerance) {
+      if (step_size < options.tolerance || stalled) {
         converged = true;
         break;
       }
