@@ -125,6 +125,12 @@ _ENTRIES: list[ConfigEntry] = [
                 "prediction is rejected", 0.01, 180.0),
     ConfigEntry("registration.constant_velocity", bool, True, "predict each motion from the previous one "
                 "(scaled by the stamp interval); false = identity", None, None),
+    ConfigEntry("registration.guess_preference", float, 0.0, "a RANSAC estimate replaces the refined guess "
+                "(prediction or previous pass) only when its weighted inlier count is larger by this fraction",
+                0.0, 1.0),
+    ConfigEntry("registration.coarse_downsample", int, 6, "while there is no velocity (first motion after start "
+                "or reset), register the scans downsampled by this step first and start from that estimate "
+                "(0 or <= downsample: off)", 0, 64),
     ConfigEntry("registration.fallback_translation_sigma", float, 0.5, "1-sigma translation uncertainty (m) "
                 "reported when the prediction is held", 0.0, 1000.0),
     ConfigEntry("registration.fallback_rotation_sigma_deg", float, 5.0, "1-sigma rotation uncertainty (deg) "

@@ -70,6 +70,7 @@ void Odometry::reset(const RigidTransform& pose) {
   have_velocity_ = false;
   frames_ = 0;
   prev_features_ = ScanFeatures{};
+  prev_coarse_features_ = ScanFeatures{};
 }
 
 RigidTransform Odometry::predict(double stamp) const {
@@ -138,6 +139,97 @@ template std::vector<Vec3> Odometry::downsampled_points(const float*, std::size_
 template std::vector<Vec3> Odometry::downsampled_points(const double*, std::size_t, std::size_t,
                                                         const std::int32_t*) const;
 
+PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeatures& cur,
+                                      const RigidTransform& prediction, const RigidTransform& start,
+                                      bool limit_pairs, FrameStats* st) const {
+  const RegistrationOptions& reg = config_.registration;
+  Stopwatch stage;
+  RigidTransform best = start;
+  MotionStats best_stats;
+  bool have = false;
+  CandidateOptions copt = config_.candidates;
+  if (!limit_pairs) copt.max_pairs_per_line = 0;
+  Correspondences corr;
+  CandidateStats cstats;
+  std::string failure;
+  RefineOptions ropt;
+  ropt.iterations = config_.ransac.refine_iterations;
+  ropt.line_threshold = config_.ransac.inlier_threshold;
+  ropt.plane_angle_threshold = config_.ransac.plane_angle_threshold_deg * kPi / 180.0;
+  ropt.plane_distance_threshold = config_.ransac.plane_distance_threshold;
+  ropt.huber_delta = config_.ransac.huber_delta > 0.0 ? config_.ransac.huber_delta : config_.ransac.inlier_threshold;
+  ropt.degeneracy_threshold = config_.ransac.degeneracy_threshold;
+  auto sane = [&](const RigidTransform& T) {
+    if (!T.is_finite()) return false;
+    const RigidTransform deviation = prediction.inverse() * T;
+    return deviation.t.norm() <= reg.max_translation &&
+           rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
+  };
+  for (int pass = 0; pass < reg.passes; ++pass) {
+    stage = Stopwatch();
+    build_candidates(prev, cur, best, copt, &corr, &cstats);
+    st->ms.candidates += stage.ms();
+    st->candidates = cstats.line_pairs;
+    st->plane_candidates = cstats.plane_pairs;
+
+    stage = Stopwatch();
+    MotionOptions mopt = config_.ransac;
+    mopt.seed = mix_seed(config_.seed, static_cast<std::uint64_t>(frames_), static_cast<std::uint64_t>(pass));
+    RigidTransform estimate;
+    MotionStats ms;
+    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms) && sane(estimate) &&
+                    ms.inliers >= reg.min_inliers;
+    st->iterations += ms.iterations;
+    // The guess itself, refined on this pass's candidates, competes with the RANSAC winner: whichever has
+    // the larger weighted inlier count on the same candidates is kept (paper §6.3 inlier counting).
+    RefineResult refined;
+    const bool refined_ok = refine_motion(corr, best, ropt, &refined) && sane(refined.T) && !refined.degenerate &&
+                            refined.line_inliers >= reg.min_inliers;
+    const double thr = config_.ransac.inlier_threshold;
+    const double score_prior = have ? score_motion(corr, best, thr) : -1.0;
+    const double score_ransac = ok ? score_motion(corr, estimate, thr) : -1.0;
+    const double score_refined = refined_ok ? score_motion(corr, refined.T, thr) : -1.0;
+    st->ms.ransac += stage.ms();
+
+    copt.max_distance *= reg.pass_distance_scale;
+    copt.plane_max_distance *= reg.pass_distance_scale;
+    copt.max_pairs_per_line = config_.candidates.max_pairs_per_line;
+    if (!ok && !refined_ok) {
+      failure = ms.inliers < reg.min_inliers && ms.inliers > 0
+                    ? "too few inliers (" + std::to_string(ms.inliers) + " < " + std::to_string(reg.min_inliers) + ")"
+                    : "no model with enough support (" + std::to_string(cstats.line_pairs) + " candidates)";
+      continue;
+    }
+    // Ties go to the guess (the constant-velocity prediction carries the weakly observed directions).
+    const double margin = 1.0 + reg.guess_preference;
+    if (score_ransac > margin * score_refined && score_ransac > margin * score_prior) {
+      best = estimate;
+      best_stats = ms;
+    } else if (score_refined > score_prior) {
+      best = refined.T;
+      best_stats.inliers = refined.line_inliers;
+      best_stats.inlier_weight = refined.line_inlier_weight;
+      best_stats.plane_inliers = refined.plane_inliers;
+      best_stats.residual_rms = refined.residual_rms;
+      best_stats.covariance = refined.covariance;
+      best_stats.degenerate = refined.degenerate;
+      if (!have) best_stats.best_solver = -2;
+    } else {
+      continue;
+    }
+    have = true;
+    ++st->passes;
+    failure.clear();
+  }
+
+  PassOutcome out;
+  out.best = best;
+  out.stats = best_stats;
+  out.have = have;
+  out.failure = failure;
+  return out;
+}
+
 FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms) {
   Stopwatch total;
   FrameResult result;
@@ -166,6 +258,14 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   st.v_lines = static_cast<int>(features.v_lines.size());
   st.planes = static_cast<int>(features.planes.size());
 
+  ScanFeatures coarse_features;
+  const int coarse_step = config_.registration.coarse_downsample;
+  if (!have_velocity_ && coarse_step > config_.downsample) {
+    stage = Stopwatch();
+    coarse_features = extract_features(downsample(image, coarse_step), config_.features);
+    st.ms.features += stage.ms();
+  }
+
   if (frames_ == 0) {  // first frame: it defines the odometry frame (with the reset pose)
     result.pose = pose_;
     result.delta = RigidTransform::identity();
@@ -176,80 +276,28 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     const double dt = stamp - prev_stamp_;
     const RigidTransform prediction = predict(stamp);
     const RegistrationOptions& reg = config_.registration;
-    RigidTransform best = prediction;
-    MotionStats best_stats;
-    bool have = false;
-    CandidateOptions copt = config_.candidates;
-    Correspondences corr;
-    CandidateStats cstats;
-    std::string failure;
-    RefineOptions ropt;
-    ropt.iterations = config_.ransac.refine_iterations;
-    ropt.line_threshold = config_.ransac.inlier_threshold;
-    ropt.plane_angle_threshold = config_.ransac.plane_angle_threshold_deg * kPi / 180.0;
-    ropt.plane_distance_threshold = config_.ransac.plane_distance_threshold;
-    ropt.huber_delta = config_.ransac.huber_delta > 0.0 ? config_.ransac.huber_delta : config_.ransac.inlier_threshold;
-    ropt.degeneracy_threshold = config_.ransac.degeneracy_threshold;
-    auto sane = [&](const RigidTransform& T) {
-      if (!T.is_finite()) return false;
-      const RigidTransform deviation = prediction.inverse() * T;
-      return deviation.t.norm() <= reg.max_translation &&
-             rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
-    };
-    for (int pass = 0; pass < reg.passes; ++pass) {
-      stage = Stopwatch();
-      build_candidates(prev_features_, features, best, copt, &corr, &cstats);
-      st.ms.candidates += stage.ms();
-      st.candidates = cstats.line_pairs;
-      st.plane_candidates = cstats.plane_pairs;
-
-      stage = Stopwatch();
-      MotionOptions mopt = config_.ransac;
-      mopt.seed = mix_seed(config_.seed, static_cast<std::uint64_t>(frames_), static_cast<std::uint64_t>(pass));
-      RigidTransform estimate;
-      MotionStats ms;
-      const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms) && sane(estimate) &&
-                      ms.inliers >= reg.min_inliers;
-      st.iterations += ms.iterations;
-      // The guess itself, refined on this pass's candidates, competes with the RANSAC winner: whichever has
-      // the larger weighted inlier count on the same candidates is kept (paper §6.3 inlier counting).
-      RefineResult refined;
-      const bool refined_ok = refine_motion(corr, best, ropt, &refined) && sane(refined.T) && !refined.degenerate &&
-                              refined.line_inliers >= reg.min_inliers;
-      const double thr = config_.ransac.inlier_threshold;
-      const double score_prior = have ? score_motion(corr, best, thr) : -1.0;
-      const double score_ransac = ok ? score_motion(corr, estimate, thr) : -1.0;
-      const double score_refined = refined_ok ? score_motion(corr, refined.T, thr) : -1.0;
-      st.ms.ransac += stage.ms();
-
-      copt.max_distance *= reg.pass_distance_scale;
-      copt.plane_max_distance *= reg.pass_distance_scale;
-      if (!ok && !refined_ok) {
-        failure = ms.inliers < reg.min_inliers && ms.inliers > 0
-                      ? "too few inliers (" + std::to_string(ms.inliers) + " < " + std::to_string(reg.min_inliers) + ")"
-                      : "no model with enough support (" + std::to_string(cstats.line_pairs) + " candidates)";
-        continue;
+    RigidTransform start = prediction;
+    bool coarse_used = false;
+    if (!have_velocity_ && !prev_coarse_features_.h_lines.empty() && !coarse_features.h_lines.empty()) {
+      // No velocity yet: a coarse registration on the sparse scans finds the first motion (paper §6.3 needs a
+      // guess within the candidate distance), the full-resolution passes refine it.
+      FrameStats coarse_stats;
+      const PassOutcome coarse = register_features(prev_coarse_features_, coarse_features, prediction, prediction,
+                                                   false, &coarse_stats);
+      st.ms.candidates += coarse_stats.ms.candidates;
+      st.ms.ransac += coarse_stats.ms.ransac;
+      st.iterations += coarse_stats.iterations;
+      if (coarse.have) {
+        start = coarse.best;
+        coarse_used = true;
       }
-      if (score_ransac >= score_refined && score_ransac > score_prior) {
-        best = estimate;
-        best_stats = ms;
-      } else if (score_refined > score_prior) {
-        best = refined.T;
-        best_stats.inliers = refined.line_inliers;
-        best_stats.inlier_weight = refined.line_inlier_weight;
-        best_stats.plane_inliers = refined.plane_inliers;
-        best_stats.residual_rms = refined.residual_rms;
-        best_stats.covariance = refined.covariance;
-        best_stats.degenerate = refined.degenerate;
-        if (!have) best_stats.best_solver = -2;
-      } else {
-        continue;
-      }
-      have = true;
-      ++st.passes;
-      failure.clear();
     }
-
+    const PassOutcome outcome = register_features(prev_features_, features, prediction, start,
+                                                  have_velocity_ || coarse_used, &st);
+    const RigidTransform& best = outcome.best;
+    const MotionStats& best_stats = outcome.stats;
+    const bool have = outcome.have;
+    std::string failure = outcome.failure;
     if (have && !best_stats.degenerate && best_stats.covariance.allFinite()) {
       result.delta = best;
       result.covariance = best_stats.covariance;
@@ -282,6 +330,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   }
 
   prev_features_ = std::move(features);
+  prev_coarse_features_ = std::move(coarse_features);
   prev_stamp_ = stamp;
   ++frames_;
   st.ms.total = total.ms() + organize_ms;
@@ -327,6 +376,8 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);
   visit("registration.constant_velocity", c.registration.constant_velocity);
+  visit("registration.guess_preference", c.registration.guess_preference);
+  visit("registration.coarse_downsample", c.registration.coarse_downsample);
   visit("registration.fallback_translation_sigma", c.registration.fallback_translation_sigma);
   visit("registration.fallback_rotation_sigma_deg", c.registration.fallback_rotation_sigma_deg);
 }

@@ -27,6 +27,9 @@ struct RegistrationOptions {
   double max_translation = 5.0;         // reject estimates this far (m) from the prediction
   double max_rotation_deg = 30.0;       // ... or rotated this much from it
   bool constant_velocity = true;        // false: predict identity
+  double guess_preference = 0.0;        // the RANSAC winner must beat the refined guess's weighted inliers by
+                                        // this fraction to replace it
+  int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / <= downsample: off)
   double fallback_translation_sigma = 0.5;    // covariance reported when the prediction is held
   double fallback_rotation_sigma_deg = 5.0;
 };
@@ -84,6 +87,13 @@ struct FrameResult {
   FrameStats stats;
 };
 
+struct PassOutcome {
+  RigidTransform best;
+  MotionStats stats;
+  bool have = false;
+  std::string failure;
+};
+
 class Odometry {
  public:
   explicit Odometry(const OdometryConfig& config);
@@ -113,6 +123,9 @@ class Odometry {
 
  private:
   RigidTransform predict(double stamp) const;
+  // The passes of paper §6.3 from `start`; `prediction` bounds the accepted estimates.
+  PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
+                                const RigidTransform& start, bool limit_pairs, FrameStats* st) const;
 
   OdometryConfig config_;
   SensorModel sensor_;
@@ -123,6 +136,7 @@ class Odometry {
   bool have_velocity_ = false;
   int frames_ = 0;
   ScanFeatures prev_features_;
+  ScanFeatures prev_coarse_features_;
 };
 
 // Dotted settings ("ransac.max_iterations", ...) as in the ROS parameters and YAML presets.
