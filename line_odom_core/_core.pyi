@@ -29,10 +29,10 @@ def solve_7l(segments_a: npt.ArrayLike, segments_b: npt.ArrayLike, init: npt.Arr
 def benchmark_solver(solver: str, instances: int = 1000, repetitions: int = 5, seed: int = 0, *,
                      method: str = "gauss_newton", max_iterations: int = 30000, tolerance: float = 1e-12,
                      found_tolerance: float = 1e-6, guess_rotation_deg: float = 5.0, guess_translation: float = 0.5,
-                     max_translation: float = 2.0, scene_radius: float = 10.0) -> dict[str, Any]:
-    """C++ timing loop over seeded noise-free instances of "1l2p", "3l1p" or "7l". Keys: solver, method, instances,
-    repetitions, median_us, min_us, solutions_per_call, found_rate, no_solution_rate, median_error, p99_error,
-    mean_iterations."""
+                     max_translation: float = 2.0, scene_radius: float = 10.0, chunk: int = 0) -> dict[str, Any]:
+    """C++ timing loop over seeded noise-free instances of "1l2p", "3l1p" or "7l", timed in chunks of `chunk`
+    consecutive calls (0: auto). Keys: solver, method, instances, repetitions, median_us, p90_us, min_us, chunk,
+    solutions_per_call, found_rate, no_solution_rate, median_error, p99_error, mean_iterations."""
 
 # ---- odometry pipeline (issue 4) ----
 

@@ -195,8 +195,9 @@ py::list solve_7l(py::handle segments_a, py::handle segments_b, py::handle init,
 py::dict benchmark_solver(const std::string& solver, int instances, int repetitions, std::uint64_t seed,
                           const std::string& method, int max_iterations, double tolerance, double found_tolerance,
                           double guess_rotation_deg, double guess_translation, double max_translation,
-                          double scene_radius) {
+                          double scene_radius, int chunk) {
   line_odom::SolverBenchmarkOptions o;
+  o.chunk = chunk;
   o.solver = solver;
   o.instances = instances;
   o.repetitions = repetitions;
@@ -221,6 +222,8 @@ py::dict benchmark_solver(const std::string& solver, int instances, int repetiti
   d["repetitions"] = r.repetitions;
   d["median_us"] = r.median_us;
   d["min_us"] = r.min_us;
+  d["p90_us"] = r.p90_us;
+  d["chunk"] = r.chunk;
   d["solutions_per_call"] = r.solutions_per_call;
   d["found_rate"] = r.found_rate;
   d["no_solution_rate"] = r.no_solution_rate;
@@ -639,9 +642,10 @@ PYBIND11_MODULE(_core, m) {
         py::arg("max_iterations") = line_odom::Solve7LOptions{}.max_iterations,
         py::arg("tolerance") = line_odom::Solve7LOptions{}.tolerance, py::arg("found_tolerance") = 1e-6,
         py::arg("guess_rotation_deg") = 5.0, py::arg("guess_translation") = 0.5, py::arg("max_translation") = 2.0,
-        py::arg("scene_radius") = 10.0,
-        "C++ timing loop over seeded noise-free instances of solver '1l2p', '3l1p' or '7l' (method for 7L).\n"
-        "Returns median_us/min_us per call, solutions_per_call, found_rate (a solution within found_tolerance of\n"
+        py::arg("scene_radius") = 10.0, py::arg("chunk") = 0,
+        "C++ timing loop over seeded noise-free instances of solver '1l2p', '3l1p' or '7l' (method for 7L), timed in\n"
+        "chunks of consecutive calls. Returns median_us/p90_us/min_us per call over the chunks, chunk,\n"
+        "solutions_per_call, found_rate (a solution within found_tolerance of\n"
         "the truth), no_solution_rate, median_error, p99_error, mean_iterations (7L).");
 
   // ---- scan features (issue 4) ----

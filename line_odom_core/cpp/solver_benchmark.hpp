@@ -13,7 +13,8 @@ namespace line_odom {
 struct SolverBenchmarkOptions {
   std::string solver = "3l1p";  // "1l2p", "3l1p" or "7l"
   int instances = 1000;         // distinct random instances, generated before timing
-  int repetitions = 5;          // timed passes over all instances; the median pass is reported
+  int repetitions = 5;          // timed passes over all instances
+  int chunk = 0;                // calls per timed chunk (0: 128 for 1L2P/3L1P, 8 for 7L Gauss-Newton, 1 otherwise)
   std::uint64_t seed = 0;
   double found_tolerance = 1e-6;
   double max_translation = 2.0;         // |t_i| of the true pose uniform in [-max, max] (m); rotation uniform
@@ -26,8 +27,10 @@ struct SolverBenchmarkOptions {
 struct SolverBenchmarkResult {
   int instances = 0;
   int repetitions = 0;
-  double median_us = 0.0;           // per call, median pass
-  double min_us = 0.0;              // per call, fastest pass
+  double median_us = 0.0;           // per call: median over all timed chunks of all passes
+  double p90_us = 0.0;              // per call: 90th percentile of the chunks
+  double min_us = 0.0;              // per call: fastest chunk
+  int chunk = 0;
   double solutions_per_call = 0.0;
   double found_rate = 0.0;          // instances with a solution within found_tolerance of the truth
   double no_solution_rate = 0.0;    // instances with no solution at all
