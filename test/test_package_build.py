@@ -22,9 +22,9 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "line_odom"
 BUILD_TIMEOUT_S = 1200
-# what a fresh checkout holds, minus the artefacts of a development set-up
+# outside a git checkout: the tree minus the artefacts of a development set-up
 NOT_SOURCE = shutil.ignore_patterns(".git", ".venv", "build", "install", "log", "__pycache__", "*.so", "*.o",
-                                    "*.egg-info", ".pytest_cache", ".hypothesis", "out", "_deps")
+                                    "*.egg-info", ".pytest_cache", ".hypothesis", "out", "_deps", "demo_out")
 # rclpy's console log line: [INFO] [1700000000.123456789] [logger.name]: message
 ROS_LOG_LINE = re.compile(r"^\[(DEBUG|INFO|WARN|ERROR|FATAL)\] \[\d+\.\d+\] \[([^\]]+)\]: ")
 
@@ -40,6 +40,21 @@ class Workspace:
         return proc.stdout.strip()
 
 
+def copy_package_source(dest: Path) -> None:
+    """The checkout's source files: in a git checkout, tracked plus untracked-but-not-ignored files
+    (what the next commit could hold); otherwise the tree minus development artefacts."""
+    listing = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                             cwd=REPO, capture_output=True) if shutil.which("git") else None
+    if listing is None or listing.returncode != 0:
+        shutil.copytree(REPO, dest, ignore=NOT_SOURCE)
+        return
+    for rel in filter(None, listing.stdout.decode().split("\0")):
+        src = REPO / rel
+        if src.is_file():  # deleted-but-tracked files are listed too
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+
+
 def sourced_environment(setup_sh: Path, base_env: dict[str, str]) -> dict[str, str]:
     """The environment after `. install/setup.sh` (what a user does before `ros2 run`)."""
     proc = subprocess.run(["sh", "-c", '. "$0" && env -0', str(setup_sh)], env=base_env,
@@ -53,7 +68,7 @@ def workspace(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
     colcon = Path(sys.executable).parent / "colcon"
     assert colcon.is_file(), "colcon is not installed in this environment: run `make setup`"
     ws = tmp_path_factory.mktemp("colcon_ws")
-    shutil.copytree(REPO, ws / "src" / PACKAGE, ignore=NOT_SOURCE)
+    copy_package_source(ws / "src" / PACKAGE)
 
     env = dict(os.environ)
     env["COLCON_HOME"] = str(ws / ".colcon")  # no user defaults / mixins
