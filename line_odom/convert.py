@@ -27,6 +27,7 @@ POINT_FIELD_TYPES = {
     8: np.float64,
 }
 NUMPY_TO_POINT_FIELD = {np.dtype(t): code for code, t in POINT_FIELD_TYPES.items()}
+MAX_POINT_STEP = 2**31 - 1  # a structured dtype's itemsize is a C int
 
 RING_FIELDS = ("ring",)
 INTENSITY_FIELDS = ("intensity", "reflectivity", "reflectance", "i")
@@ -116,6 +117,8 @@ def pointcloud2_dtype(fields, point_step: int, is_bigendian: bool = False) -> np
     point_step = _as_int(point_step, "point_step")
     if point_step == 0:
         raise PointCloudError("point_step", "is 0")
+    if point_step > MAX_POINT_STEP:
+        raise PointCloudError("point_step", f"{point_step} bytes per point exceeds {MAX_POINT_STEP} (numpy's limit)")
     order = ">" if is_bigendian else "<"
     names, formats, offsets = [], [], []
     for i, f in enumerate(fields):
