@@ -31,8 +31,8 @@ def benchmark_solver(solver: str, instances: int = 1000, repetitions: int = 5, s
                      found_tolerance: float = 1e-6, guess_rotation_deg: float = 5.0, guess_translation: float = 0.5,
                      max_translation: float = 2.0, scene_radius: float = 10.0, chunk: int = 0) -> dict[str, Any]:
     """C++ timing loop over seeded noise-free instances of "1l2p", "3l1p" or "7l", timed in chunks of `chunk`
-    consecutive calls (0: auto). Keys: solver, method, instances, repetitions, median_us, p90_us, min_us, chunk,
-    solutions_per_call, found_rate, no_solution_rate, median_error, p99_error, mean_iterations."""
+    consecutive calls (0: auto). Keys: solver, method, instances, repetitions, median_us, p90_us, min_us, mean_us,
+    chunk, solutions_per_call, found_rate, no_solution_rate, median_error, p99_error, mean_iterations."""
 
 # ---- odometry pipeline (issue 4) ----
 

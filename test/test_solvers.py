@@ -214,6 +214,10 @@ def test_7l_both_methods_on_the_same_instances():
 def test_benchmark_is_deterministic_and_rejects_unknown_solvers():
     a = _core.benchmark_solver("3l1p", 300, 1, 7)
     b = _core.benchmark_solver("3l1p", 300, 1, 7)
+    assert set(a) == {"solver", "method", "instances", "repetitions", "median_us", "p90_us", "min_us", "mean_us",
+                      "chunk", "solutions_per_call", "found_rate", "no_solution_rate", "median_error", "p99_error",
+                      "mean_iterations"}
+    assert 0 < a["min_us"] <= a["median_us"] <= a["p90_us"]
     assert a["solutions_per_call"] == b["solutions_per_call"] and a["median_error"] == b["median_error"]
     with pytest.raises(ValueError, match="solver"):
         _core.benchmark_solver("5p", 10, 1, 0)

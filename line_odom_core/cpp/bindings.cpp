@@ -223,6 +223,7 @@ py::dict benchmark_solver(const std::string& solver, int instances, int repetiti
   d["median_us"] = r.median_us;
   d["min_us"] = r.min_us;
   d["p90_us"] = r.p90_us;
+  d["mean_us"] = r.mean_us;
   d["chunk"] = r.chunk;
   d["solutions_per_call"] = r.solutions_per_call;
   d["found_rate"] = r.found_rate;
@@ -644,7 +645,7 @@ PYBIND11_MODULE(_core, m) {
         py::arg("guess_rotation_deg") = 5.0, py::arg("guess_translation") = 0.5, py::arg("max_translation") = 2.0,
         py::arg("scene_radius") = 10.0, py::arg("chunk") = 0,
         "C++ timing loop over seeded noise-free instances of solver '1l2p', '3l1p' or '7l' (method for 7L), timed in\n"
-        "chunks of consecutive calls. Returns median_us/p90_us/min_us per call over the chunks, chunk,\n"
+        "chunks of consecutive calls. Returns median_us/p90_us/min_us per call over the chunks, mean_us, chunk,\n"
         "solutions_per_call, found_rate (a solution within found_tolerance of\n"
         "the truth), no_solution_rate, median_error, p99_error, mean_iterations (7L).");
 

@@ -181,6 +181,7 @@ SolverBenchmarkResult benchmark_solver(const SolverBenchmarkOptions& o) {
   // being preempted on a loaded machine; the per-call time of every chunk is one sample
   const int chunk = o.chunk > 0 ? o.chunk : solver == Solver::k7L ? (o.solve_7l.method == Solve7LMethod::kGaussNewton ? 8 : 1) : 128;
   std::vector<double> per_call_us;
+  double total_us = 0.0;
   volatile long sink = 0;
   for (int rep = 0; rep < o.repetitions; ++rep) {
     for (size_t first = 0; first < instances.size(); first += static_cast<size_t>(chunk)) {
@@ -191,12 +192,14 @@ SolverBenchmarkResult benchmark_solver(const SolverBenchmarkOptions& o) {
       for (size_t i = first; i < last; ++i) total += solve(solver, instances[i], o.solve_7l, out, &it);
       const auto stop = std::chrono::steady_clock::now();
       sink = sink + total + static_cast<long>(out[0].t.x() != 0.0);
+      total_us += std::chrono::duration<double, std::micro>(stop - start).count();
       per_call_us.push_back(std::chrono::duration<double, std::micro>(stop - start).count() /
                             static_cast<double>(last - first));
     }
   }
   result.median_us = percentile(per_call_us, 0.5);
   result.p90_us = percentile(per_call_us, 0.9);
+  result.mean_us = total_us / (count * o.repetitions);
   result.min_us = *std::min_element(per_call_us.begin(), per_call_us.end());
   result.chunk = chunk;
   return result;

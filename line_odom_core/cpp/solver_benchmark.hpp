@@ -30,6 +30,7 @@ struct SolverBenchmarkResult {
   double median_us = 0.0;           // per call: median over all timed chunks of all passes
   double p90_us = 0.0;              // per call: 90th percentile of the chunks
   double min_us = 0.0;              // per call: fastest chunk
+  double mean_us = 0.0;             // per call: all timed calls
   int chunk = 0;
   double solutions_per_call = 0.0;
   double found_rate = 0.0;          // instances with a solution within found_tolerance of the truth
