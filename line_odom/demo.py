@@ -81,12 +81,17 @@ def run_demo(out_dir: str | Path = "demo_out", *, storage: str = "sqlite3", prog
     t_start = time.monotonic()
     for sc in scenarios:
         print(f"== {sc.name}: {sc.title}", file=stream, flush=True)
+        t0 = time.monotonic()
         bag = write_scenario_bag(sc, out / sc.name / "input_bag", storage, progress)
+        t1 = time.monotonic()
         res = replay.replay_bag(bag, out / sc.name, overrides=sc.overrides, progress=progress,
                                 title=f"line_odom demo: {sc.title}")
+        t2 = time.monotonic()
         results[sc.name] = res.metrics
         print(evaluation.format_table(res.metrics), file=stream)
-        print(f"   bag: {bag}\n   plot: {out / sc.name / 'trajectory.png'}", file=stream, flush=True)
+        print(f"   bag:  {bag} (simulated and written in {t1 - t0:.1f} s)\n"
+              f"   plot: {out / sc.name / 'trajectory.png'} (replayed and evaluated in {t2 - t1:.1f} s)",
+              file=stream, flush=True)
     print(f"== summary ({time.monotonic() - t_start:.1f} s)", file=stream)
     print(comparison_table(results), file=stream, flush=True)
     return results

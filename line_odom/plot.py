@@ -16,7 +16,8 @@ AXIS_NAMES = "xyz"
 
 
 def _top_view_axes(positions: np.ndarray) -> tuple[int, int]:
-    """The two axes with the largest spread (the view looks along the axis that varies least)."""
+    """Without ground truth (whose world has z up) the up axis is unknown: show the two axes with the largest
+    spread (the view looks along the axis that varies least)."""
     if len(positions) < 2:
         return 0, 1
     spread = positions.max(axis=0) - positions.min(axis=0)
@@ -41,7 +42,7 @@ def plot_trajectory(path: str | Path, estimate: Trajectory, ground_truth: Trajec
         start = gt.poses[0] @ np.linalg.inv(est.poses[0])
         est_xyz = (start @ est.poses)[:, :3, 3]
         gt_xyz = gt.poses[:, :3, 3]
-        a, b = _top_view_axes(gt_xyz)
+        a, b = 0, 1  # the ground-truth worlds (KITTI LiDAR, TUM mocap, simulator) have z up: look down z
         ax_top.plot(gt_xyz[:, a], gt_xyz[:, b], "k--", lw=1.5, label="ground truth")
         ax_top.plot(est_xyz[:, a], est_xyz[:, b], "C0-", lw=1.5, label="estimate (start-aligned)")
         ax_top.plot(gt_xyz[:1, a], gt_xyz[:1, b], "ko", ms=5, label="start")
