@@ -80,7 +80,7 @@ py::array_t<double, py::array::c_style> as_float_array(const char* function, con
   if (!out) throw py::value_error(expected);
   const double* data = out.data();
   for (py::ssize_t i = 0; i < out.size(); ++i)
-    if (!std::isfinite(data[i])) throw py::value_error(std::string(function) + ": " + name + " must be finite");
+    if (!std::isfinite(data[i])) throw py::value_error(expected + " of finite values, got NaN or infinity");
   return out;
 }
 
