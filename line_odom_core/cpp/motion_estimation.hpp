@@ -7,6 +7,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "solvers/solve_7l.hpp"
+
 #include "types.hpp"
 
 namespace line_odom {
@@ -33,6 +35,12 @@ struct MotionOptions {
   int refine_iterations = 10;
   double huber_delta = 0.0;           // 0: use inlier_threshold
   std::uint64_t seed = 0;
+  int min_inliers = 10;               // success needs at least this many line-pair inliers after refinement
+  double degeneracy_threshold = 1e-5;  // degenerate when the scaled J^T W J is worse conditioned than this
+  bool local_optimisation = true;     // refine every new best hypothesis on its inliers (LO-RANSAC)
+  bool pretest = true;                // score a random subset first and drop clearly worse hypotheses
+  Solve7LMethod solve_7l_method = Solve7LMethod::kGaussNewton;
+  int solve_7l_max_iterations = 0;    // 0: 30 for Gauss-Newton, 30000 for alternating projection
 };
 
 struct MotionStats {
@@ -45,10 +53,21 @@ struct MotionStats {
   Mat6 covariance = Mat6::Identity();  // order (x y z rx ry rz), REP-103; perturbation T = exp(xi) T_hat
   double residual_rms = 0.0;
   bool degenerate = false;             // refinement normal matrix badly conditioned
+  bool success = false;                // what estimate_motion returned
+  std::array<int, 3> solver_iterations{};  // samples drawn per solver: 7L, 3L1P, 1L2P
+  int models = 0;                      // hypotheses scored
+  double condition = 0.0;              // smallest / largest eigenvalue of the scaled J^T W J
+  int dropped_line_pairs = 0;          // non-finite or zero-direction lines, negative weights
+  int dropped_plane_pairs = 0;         // non-finite or zero-normal planes
+  std::vector<std::uint8_t> line_inlier_mask;   // per input line pair under the best motion found (1 = inlier)
+  std::vector<std::uint8_t> plane_inlier_mask;  // per input plane pair
 };
 
 // Returns true and writes T_ab when a model with enough support was found. Never throws on bad geometry:
-// insufficient or degenerate data returns false with stats describing why.
+// insufficient or degenerate data returns false, writes T_ab = init and fills stats describing why.
+// Pairs whose lines are closer to parallel than ~3 deg neither count as inliers nor enter the refinement.
+// 7L without segments: each pair gets two 2 m segments centred on the points where the lines come closest
+// under init.
 bool estimate_motion(const Correspondences& data, const RigidTransform& init, const MotionOptions& options,
                      RigidTransform* T_ab, MotionStats* stats);
 

@@ -1,0 +1,215 @@
+#include "refine.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+
+namespace line_odom {
+namespace {
+
+Mat3 skew(const Vec3& w) {
+  Mat3 S;
+  S << 0.0, -w.z(), w.y(), w.z(), 0.0, -w.x(), -w.y(), w.x(), 0.0;
+  return S;
+}
+
+double huber_weight(double r_abs, double delta) { return r_abs <= delta ? 1.0 : delta / r_abs; }
+
+// Normal equations of the gated residuals at T.
+struct NormalEquations {
+  Mat6 H = Mat6::Zero();
+  Vec6 g = Vec6::Zero();
+  double weighted_sq = 0.0;  // sum of weight * residual^2 (metres^2)
+  double weight_sum = 0.0;   // over residual components
+  int residuals = 0;         // residual components
+  int line_inliers = 0;
+  double line_inlier_weight = 0.0;
+  double line_sq = 0.0;
+  int plane_inliers = 0;
+};
+
+NormalEquations accumulate(const Correspondences& data, const RigidTransform& T, const RefineOptions& o,
+                           double weight_scale) {
+  NormalEquations ne;
+  const double huber = o.huber_delta > 0.0 ? o.huber_delta : o.line_threshold;
+  const double min_s2 = o.min_line_sine * o.min_line_sine;
+  const double th2 = o.line_threshold * o.line_threshold;
+  const bool weighted = !data.weights.empty();
+  const size_t n = data.lines_a.size();
+  for (size_t i = 0; i < n; ++i) {
+    const PluckerLine& a = data.lines_a[i];
+    const double w_pair = weighted ? data.weights[i] : 1.0;
+    if (!(w_pair > 0.0)) continue;
+    const PluckerLine b = data.lines_b[i].moved(T);
+    const Vec3 c = a.d.cross(b.d);
+    const double s2 = c.squaredNorm();
+    if (s2 < min_s2) continue;
+    const double f = a.d.dot(b.m) + b.d.dot(a.m);
+    if (f * f >= th2 * s2) continue;
+    const double s = std::sqrt(s2);
+    const double r = f / s;
+    // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held.
+    Vec6 J;
+    J.head<3>() = b.d.cross(a.d) / s;
+    J.tail<3>() = (b.m.cross(a.d) + b.d.cross(a.m)) / s;
+    const double w = w_pair * weight_scale * huber_weight(std::abs(r), huber);
+    ne.H.noalias() += w * J * J.transpose();
+    ne.g.noalias() += w * r * J;
+    ne.weighted_sq += w * r * r;
+    ne.weight_sum += w_pair * weight_scale;
+    ne.residuals += 1;
+    ne.line_inliers += 1;
+    ne.line_inlier_weight += w_pair;
+    ne.line_sq += r * r;
+  }
+  const double k_angle = o.line_threshold / o.plane_angle_threshold;
+  const double k_dist = o.line_threshold / o.plane_distance_threshold;
+  const double cos_th = std::cos(o.plane_angle_threshold);
+  const size_t m = std::min(data.planes_a.size(), data.planes_b.size());
+  for (size_t j = 0; j < m; ++j) {
+    const Plane& a = data.planes_a[j];
+    const Plane b = data.planes_b[j].moved(T);
+    const double cosang = a.n.dot(b.n);
+    const double dd = b.delta - a.delta;
+    if (!(cosang > cos_th) || !(std::abs(dd) < o.plane_distance_threshold)) continue;
+    // n'' = n' + w x n'  ->  d n''/dw = -[n']x ;  delta'' = delta' - n'.v  ->  d delta''/dv = -n'
+    const Vec3 rn = (b.n - a.n) * k_angle;
+    const Mat3 Jn = -skew(b.n) * k_angle;
+    const double rd = dd * k_dist;
+    const Vec3 Jd = -b.n * k_dist;
+    const double wn = huber_weight(rn.norm(), huber);
+    const double wd = huber_weight(std::abs(rd), huber);
+    ne.H.bottomRightCorner<3, 3>().noalias() += wn * Jn.transpose() * Jn;
+    ne.g.tail<3>().noalias() += wn * Jn.transpose() * rn;
+    ne.H.topLeftCorner<3, 3>().noalias() += wd * Jd * Jd.transpose();
+    ne.g.head<3>().noalias() += wd * rd * Jd;
+    ne.weighted_sq += wn * rn.squaredNorm() + wd * rd * rd;
+    ne.weight_sum += 3.0;
+    ne.residuals += 3;  // the normal residual has rank 2
+    ne.plane_inliers += 1;
+  }
+  return ne;
+}
+
+// Smallest / largest eigenvalue of H with the rotation block scaled by a length so both blocks weigh alike.
+double scaled_condition(const Mat6& H) {
+  const double tt = H.topLeftCorner<3, 3>().trace();
+  const double tr = H.bottomRightCorner<3, 3>().trace();
+  if (!(tt > 0.0) || !(tr > 0.0)) return 0.0;
+  const double inv_len = std::sqrt(tt / tr);
+  Vec6 s;
+  s << 1.0, 1.0, 1.0, inv_len, inv_len, inv_len;
+  const Mat6 Hs = s.asDiagonal() * H * s.asDiagonal();
+  Eigen::SelfAdjointEigenSolver<Mat6> es(Hs, Eigen::EigenvaluesOnly);
+  const double lmax = es.eigenvalues()(5);
+  if (!(lmax > 0.0)) return 0.0;
+  return std::max(0.0, es.eigenvalues()(0) / lmax);
+}
+
+}  // namespace
+
+RigidTransform se3_exp(const Vec6& xi) {
+  const Vec3 v = xi.head<3>();
+  const Vec3 w = xi.tail<3>();
+  const double th2 = w.squaredNorm();
+  const Mat3 W = skew(w);
+  const Mat3 W2 = W * W;
+  double a, b, c;  // sin(th)/th, (1-cos th)/th^2, (th - sin th)/th^3
+  if (th2 < 1e-10) {
+    a = 1.0 - th2 / 6.0;
+    b = 0.5 - th2 / 24.0;
+    c = 1.0 / 6.0 - th2 / 120.0;
+  } else {
+    const double th = std::sqrt(th2);
+    a = std::sin(th) / th;
+    b = (1.0 - std::cos(th)) / th2;
+    c = (th - std::sin(th)) / (th2 * th);
+  }
+  RigidTransform T;
+  T.R = Mat3::Identity() + a * W + b * W2;
+  T.t = (Mat3::Identity() + b * W + c * W2) * v;
+  return T;
+}
+
+bool line_pair_is_inlier(const PluckerLine& a, const PluckerLine& b_moved, double threshold, double min_sine,
+                         double* distance) {
+  const double s2 = a.d.cross(b_moved.d).squaredNorm();
+  if (s2 < min_sine * min_sine) return false;
+  const double f = a.d.dot(b_moved.m) + b_moved.d.dot(a.m);
+  if (distance) *distance = f / std::sqrt(s2);
+  return f * f < threshold * threshold * s2;
+}
+
+bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_threshold, double distance_threshold) {
+  return a.n.dot(b_moved.n) > std::cos(angle_threshold) && std::abs(b_moved.delta - a.delta) < distance_threshold;
+}
+
+bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
+                   RefineResult* result) {
+  RefineResult res;
+  res.T = T0;
+  // Pair weights are relative: scale them to mean 1 over all line pairs so sigma^2 stays in metres^2.
+  double weight_scale = 1.0;
+  if (!data.weights.empty()) {
+    double sum = 0.0;
+    int count = 0;
+    for (double w : data.weights)
+      if (w > 0.0) sum += w, ++count;
+    if (sum > 0.0) weight_scale = count / sum;
+  }
+
+  RigidTransform T = T0;
+  bool ok = true;
+  for (int it = 0; it < options.iterations; ++it) {
+    const NormalEquations ne = accumulate(data, T, options, weight_scale);
+    if (ne.residuals < 6) {
+      ok = false;
+      break;
+    }
+    const double damping = 1e-12 * std::max(ne.H.trace(), 1e-30);
+    const Vec6 dx = (ne.H + damping * Mat6::Identity()).ldlt().solve(-ne.g);
+    if (!dx.allFinite()) {
+      ok = false;
+      break;
+    }
+    const RigidTransform step = se3_exp(dx);
+    T = step * T;
+    res.iterations = it + 1;
+    if (dx.head<3>().norm() < 1e-9 && dx.tail<3>().norm() < 1e-10) break;
+  }
+
+  const NormalEquations ne = accumulate(data, ok ? T : T0, options, weight_scale);
+  if (!ok || ne.residuals < 6 || !T.is_finite()) {
+    res.T = T0;
+    res.line_inliers = ne.line_inliers;
+    res.line_inlier_weight = ne.line_inlier_weight;
+    res.plane_inliers = ne.plane_inliers;
+    res.degenerate = true;
+    if (result) *result = res;
+    return false;
+  }
+  res.T = T;
+  res.line_inliers = ne.line_inliers;
+  res.line_inlier_weight = ne.line_inlier_weight;
+  res.plane_inliers = ne.plane_inliers;
+  res.residual_rms = ne.line_inliers > 0 ? std::sqrt(ne.line_sq / ne.line_inliers) : 0.0;
+  res.condition = scaled_condition(ne.H);
+  res.degenerate = !(res.condition >= options.degeneracy_threshold);
+  if (options.compute_covariance) {
+    // sigma^2 from the residuals, floored so an exact fit still gives a positive definite covariance.
+    const int dof = std::max(1, ne.residuals - 6);
+    const double sigma_floor = 1e-3 * options.line_threshold;
+    const double sigma2 = std::max(ne.weighted_sq / dof, sigma_floor * sigma_floor);
+    Eigen::SelfAdjointEigenSolver<Mat6> es(ne.H);
+    const double lmax = std::max(es.eigenvalues()(5), 1e-300);
+    Vec6 inv;
+    for (int k = 0; k < 6; ++k) inv(k) = 1.0 / std::max(es.eigenvalues()(k), 1e-12 * lmax);
+    Mat6 cov = sigma2 * es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+    cov = 0.5 * (cov + cov.transpose());
+    if (cov.allFinite()) res.covariance = cov;
+  }
+  if (result) *result = res;
+  return true;
+}
+
+}  // namespace line_odom

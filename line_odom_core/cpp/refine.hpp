@@ -1,0 +1,52 @@
+// Robust least-squares refinement of T_ab on all inlier line intersections and plane pairs (the local
+// optimisation of paper §6.3 and the final estimate), on SE(3) with a left perturbation T = exp(xi) T_hat,
+// xi = (x y z rx ry rz). Residuals, all in metres:
+//   line pair:  signed distance between l_a and T l_b (DESIGN.md §3),
+//   plane pair: (n_a - R n_b) * line_threshold / plane_angle_threshold and
+//               (delta_a - delta_b') * line_threshold / plane_distance_threshold,
+// so a residual at its own threshold weighs like a line residual at the line threshold. Huber IRLS times the
+// pair weight; covariance = sigma^2 (J^T W J)^-1 with sigma^2 from the weighted residuals.
+#pragma once
+
+#include "motion_estimation.hpp"
+#include "types.hpp"
+
+namespace line_odom {
+
+struct RefineOptions {
+  int iterations = 10;
+  double line_threshold = 0.02;                 // inlier gate: |signed line distance| (m)
+  double plane_angle_threshold = 0.0523598776;  // inlier gate: normal angle (rad)
+  double plane_distance_threshold = 0.05;       // inlier gate: |delta_a - delta_b'| (m)
+  double huber_delta = 0.02;                    // Huber knee on the (metre) residuals
+  double min_line_sine = 0.05;                  // pairs closer to parallel give no constraint
+  double degeneracy_threshold = 1e-5;           // smallest / largest eigenvalue of the scaled J^T W J
+  bool compute_covariance = true;
+};
+
+struct RefineResult {
+  RigidTransform T;
+  Mat6 covariance = Mat6::Identity();
+  int line_inliers = 0;
+  double line_inlier_weight = 0.0;
+  int plane_inliers = 0;
+  double residual_rms = 0.0;  // RMS signed line distance over the line inliers (m)
+  double condition = 0.0;     // smallest / largest eigenvalue of J^T W J with rotations scaled to metres
+  bool degenerate = true;
+  int iterations = 0;
+};
+
+// Motion of a left perturbation: exp(xi) as a rigid transform, xi = (v, w).
+RigidTransform se3_exp(const Vec6& xi);
+
+// Inlier tests under T (same gates as the refinement).
+bool line_pair_is_inlier(const PluckerLine& a, const PluckerLine& b_moved, double threshold, double min_sine,
+                         double* distance = nullptr);
+bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_threshold, double distance_threshold);
+
+// Gauss-Newton / IRLS from T0 over the pairs that are inliers at each iterate. Returns false (result->T = T0)
+// when fewer residuals than unknowns remain or a step is not finite; never writes NaN.
+bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
+                   RefineResult* result);
+
+}  // namespace line_odom
