@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 import line_odom_core  # noqa: E402
 from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402

@@ -59,6 +59,8 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("lines.max_gap", int, 2, "missing cells bridged inside one line", 0, 1000),
     ConfigEntry("lines.min_incidence_deg", float, 4.0, "steps closer than this to the viewing ray are depth "
                 "jumps (deg)", 0.0, 90.0),
+    ConfigEntry("lines.trim_sigmas", float, 3.0, "line end points farther than this many rms from the line are "
+                "trimmed", 0.0, 100.0),
     ConfigEntry("lines.max_outliers", int, 2, "stray points skipped between two collinear pieces", 0, 1000),
     # --- line normals from H/V crossings and their 3 clusters, paper §6.2-6.3 ---
     ConfigEntry("normals.min_crossing_angle_deg", float, 25.0, "flatter H/V crossings give no normal (deg)",
