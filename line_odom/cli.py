@@ -62,6 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--realtime", action="store_true",
                    help="run the node in its own process and publish over DDS at bag rate with /clock "
                         "(default: in-process, as fast as possible, every frame)")
+    p.add_argument("--rate", type=float, default=1.0, metavar="FACTOR",
+                   help="with --realtime: play at FACTOR x the bag's pace (e.g. 0.5 = half speed)")
     p.add_argument("--out-bag", metavar="BAG", default=None, help="also write the node's Odometry and Path to this bag")
     p.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3", help="storage of --out-bag")
     p.add_argument("--topic", default=None, help="input topic (default: the bag's only PointCloud2 or Image topic)")
@@ -150,7 +152,7 @@ def cmd_replay(args) -> int:
     from line_odom import evaluation, replay
 
     result = replay.replay_bag(args.bag, args.out, params=args.params, overrides=_parse_overrides(args.overrides),
-                               realtime=args.realtime,
+                               realtime=args.realtime, rate=args.rate,
                                out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
                                frames=args.frames, progress=not args.quiet)
     if not args.quiet:

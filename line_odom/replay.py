@@ -184,7 +184,7 @@ def write_results(out_dir: str | Path, run: ReplayRun, ground_truth: evaluation.
 def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = None,
                overrides: Mapping[str, Any] | None = None, realtime: bool = False, out_bag: str | Path | None = None,
                out_bag_storage: str = "sqlite3", topic: str | None = None, frames: int | None = None,
-               progress: bool = True, title: str | None = None) -> ReplayResult:
+               progress: bool = True, title: str | None = None, rate: float = 1.0) -> ReplayResult:
     """Replay `bag` through the node and write the results to `out_dir` (see the module docstring)."""
     if params is not None and not Path(params).is_file():
         raise FileNotFoundError(f"{params}: no such parameter file")
@@ -198,7 +198,7 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                 from line_odom import replay_realtime
 
                 run = replay_realtime.run_realtime(reader, inp, params=params, overrides=overrides, frames=frames,
-                                                   progress=bar)
+                                                   progress=bar, rate=rate)
             else:
                 processor = make_processor(inp.kind, params, overrides)
                 run = run_in_process(reader, inp, processor, frames=frames, progress=bar)

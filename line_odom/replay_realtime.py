@@ -101,7 +101,11 @@ def _tail(path: Path, lines: int = 5) -> str:
 
 
 def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
-                 overrides: Mapping[str, Any] | None = None, frames: int | None = None, progress=None):
+                 overrides: Mapping[str, Any] | None = None, frames: int | None = None, progress=None,
+                 rate: float = 1.0):
+    """Publish the bag at `rate` x its own pace (like `ros2 bag play --rate`) to the node in its own process."""
+    if not (rate > 0.0 and rate < float("inf")):
+        raise ValueError(f"rate: expected a positive factor, got {rate}")
     import rclpy
     from nav_msgs.msg import Odometry
     from rclpy.executors import SingleThreadedExecutor
@@ -166,7 +170,7 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
                 break
             if wall0 is None:
                 wall0, bag0 = time.monotonic(), message.log_time_ns
-            delay = wall0 + (message.log_time_ns - bag0) * 1e-9 - time.monotonic()
+            delay = wall0 + (message.log_time_ns - bag0) * 1e-9 / rate - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             if proc.poll() is not None:

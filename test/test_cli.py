@@ -106,3 +106,26 @@ def test_python_dash_m_entry_point(tmp_path):
     assert proc.returncode == 0
     for command in ("kitti2bag", "tum2bag", "replay", "eval", "demo"):
         assert command in proc.stdout
+
+
+def test_replay_corrupt_message_and_malformed_cloud(tmp_path, capsys):
+    import numpy as np
+
+    garbage = tmp_path / "garbage_msg"
+    with bags.BagWriter(garbage) as writer:
+        writer.write_raw(bags.KITTI_POINTS_TOPIC, bags.POINTCLOUD2, 0, b"\x00\x01\x00\x00" + b"\xff" * 7)
+    assert main(["replay", str(garbage), "--out", str(tmp_path / "o1")]) == 1
+    _one_error_line(capsys, "cannot decode", bags.KITTI_POINTS_TOPIC)
+
+    # well-formed CDR, but the cloud's data is shorter than width x point_step: the node drops it (counted)
+    seq = datasets.kitti_sequence("00", 2)
+    malformed = tmp_path / "malformed"
+    with bags.BagWriter(malformed) as writer:
+        points = np.zeros(len(seq.points(0)), dtype=bags.KITTI_POINT_DTYPE)
+        for k, name in enumerate(("x", "y", "z", "intensity")):
+            points[name] = seq.points(0)[:, k]
+        msg = writer.msgs.pointcloud2(0, "velodyne", points)
+        msg.data = msg.data[:100]
+        writer.write(bags.KITTI_POINTS_TOPIC, bags.POINTCLOUD2, 0, msg)
+    assert main(["replay", str(malformed), "--out", str(tmp_path / "o2")]) == 1
+    _one_error_line(capsys, "no pose from 1 frame", "frames_malformed")

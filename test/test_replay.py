@@ -119,14 +119,16 @@ def test_replay_parameter_errors(tmp_path, capsys, tum_bags):
 
 
 def test_realtime_replay_over_dds(tmp_path, ros_env, tum_bags):
+    """The node in its own process, fed over DDS with /clock. At a fifth of the bag's 30 Hz even a loaded machine
+    keeps up with most frames; the ones the node skips (latest wins) are counted as dropped."""
     out = tmp_path / "rt"
     assert main(["replay", str(tum_bags["sqlite3"]), "--out", str(out), "--set", "downsample=10", "--realtime",
-                 "--quiet"]) == 0
+                 "--rate", "0.2", "--quiet"]) == 0
     m = _metrics(out)
-    # at 30 Hz the node may skip a frame while it is busy (latest wins), but most arrive and are measured
-    assert m["frames"] + m["frames_dropped"] == 30 and m["frames"] >= 15, m
-    assert m["latency_mean_ms"] > 0
+    assert m["frames"] + m["frames_dropped"] == 30 and m["frames"] >= 20, m
+    assert m["latency_mean_ms"] > 0 and m["latency_p95_ms"] < 5000
     assert m["rpe_trans_mean_m"] < 2 * TUM_RPE_T, m
+    assert main(["replay", str(tum_bags["sqlite3"]), "--out", str(out), "--realtime", "--rate", "0"]) == 1
 
 
 def test_demo_small(tmp_path, capsys):
