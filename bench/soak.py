@@ -1,0 +1,273 @@
+"""Soak benchmark: thousands of simulated LiDAR frames through the node over DDS at sensor rate.
+
+    .venv/bin/python bench/soak.py                      # 5,000 frames at 10 Hz (~8.5 min)
+    .venv/bin/python bench/soak.py --frames 300         # a quick look
+
+The node runs in its own process (``python -m line_odom.node``, what ``ros2 run line_odom node`` starts) with the
+vlp16 preset and a fast setting (one pass, few RANSAC hypotheses, 3 partners per line); this process renders a
+simulated street drive (VLP-16 beams, ``--columns`` azimuth steps) on a background thread, publishes it as
+PointCloud2 (best effort, the shipped Fast DDS large-message profile) on a fixed 10 Hz schedule, and collects
+``odom`` and ``/diagnostics``. It prints frames in / out / dropped, end-to-end latency percentiles (publish to
+Odometry received), the node's RSS at start and end (and its trend), NaN poses, crashes and the frame-to-frame
+error against the simulator's ground truth. Not a test: a table to paste into docs/RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import datetime
+import os
+import platform
+import queue
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "test"))
+
+from node_harness import NodeProcess, pose_matrix, use_large_message_profile  # noqa: E402
+
+FAST_SETTINGS = {
+    "preset": "vlp16",
+    "registration.passes": 1,
+    "candidates.max_pairs_per_line": 2,
+    "ransac.max_iterations": 100,
+    "publish_tf": True,
+    "diagnostics.period": 1.0,
+}
+
+
+def rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def relative_error(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    E = np.linalg.inv(T_true) @ T_est
+    angle = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(E[:3, 3])), float(angle)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=5000)
+    ap.add_argument("--rate", type=float, default=10.0, help="sensor rate (Hz)")
+    ap.add_argument("--columns", type=int, default=900, help="VLP-16 azimuth steps per revolution")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--domain", type=int, default=90 + os.getpid() % 10, help="ROS_DOMAIN_ID")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="extra node/engine parameter (repeatable), e.g. --set registration.passes=2")
+    args = ap.parse_args()
+
+    os.environ["ROS_DOMAIN_ID"] = str(args.domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    os.environ["PYTHONUNBUFFERED"] = "1"
+    use_large_message_profile()
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import PointCloud2
+
+    from line_odom import convert, sim
+
+    params = dict(FAST_SETTINGS)
+    for item in args.set:
+        key, _, value = item.partition("=")
+        params[key] = type(params[key])(value) if key in params and not isinstance(params[key], bool) else (
+            value == "true" if value in ("true", "false") else float(value) if "." in value else int(value)
+            if value.lstrip("-").isdigit() else value)
+
+    run = sim.make("street", frames=args.frames, seed=args.seed, rate_hz=args.rate,
+                   sensor=sim.Lidar.vlp16(columns=args.columns, seed=args.seed))
+    truth = run.trajectory.poses
+    stamp0 = 100.0  # stamps in seconds: stamp0 + k / rate
+
+    node = NodeProcess(dict(os.environ), params=params)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    part = rclpy.create_node("soak_" + str(os.getpid()), context=ctx)
+    lock = threading.Lock()
+    received: dict[int, tuple[float, np.ndarray, bool]] = {}  # frame index -> (receive time, pose, finite)
+    diag: dict[str, str] = {}
+    diag_level = collections.Counter()
+
+    def on_odom(msg):
+        now = time.monotonic()
+        k = int(round((convert.stamp_to_sec(msg.header.stamp) - stamp0) * args.rate))
+        values = np.r_[[msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z,
+                        msg.pose.pose.orientation.x, msg.pose.pose.orientation.y, msg.pose.pose.orientation.z,
+                        msg.pose.pose.orientation.w], msg.pose.covariance, msg.twist.covariance,
+                       [msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z,
+                        msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z]]
+        finite = bool(np.isfinite(values).all())
+        with lock:
+            received[k] = (now, pose_matrix(msg.pose.pose) if finite else np.full((4, 4), np.nan), finite)
+
+    def on_diag(msg):
+        for status in msg.status:
+            if status.name == f"{node.namespace}/line_odom: odometry":
+                with lock:
+                    diag.clear()
+                    diag.update({kv.key: kv.value for kv in status.values})
+                    diag_level[int.from_bytes(status.level, "little") if isinstance(status.level, bytes)
+                               else int(status.level)] += 1
+
+    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    part.create_subscription(Odometry, f"{node.namespace}/odom", on_odom, reliable)
+    part.create_subscription(DiagnosticArray, "/diagnostics", on_diag, reliable)
+    pub = part.create_publisher(PointCloud2, f"{node.namespace}/points",
+                                QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(part)
+    spinning = True
+
+    def spin():
+        while spinning:
+            try:
+                executor.spin_once(timeout_sec=0.05)
+            except Exception:  # noqa: BLE001 - shutting down
+                if spinning:
+                    raise
+
+    spin_thread = threading.Thread(target=spin, daemon=True)
+    spin_thread.start()
+
+    # frames are rendered ahead on a thread so the 10 Hz schedule does not wait for the ray caster
+    frames_q: queue.Queue = queue.Queue(maxsize=50)
+
+    def render():
+        for i, frame in enumerate(run):
+            msg = convert.pointcloud2_from_xyz(frame.data.points, ring=frame.data.ring, frame_id="velodyne",
+                                               stamp=stamp0 + i / args.rate)
+            frames_q.put((i, msg))
+        frames_q.put(None)
+
+    threading.Thread(target=render, daemon=True).start()
+
+    print(f"soak: {args.frames} frames at {args.rate:g} Hz, VLP-16 x {args.columns} columns, node {node.namespace} "
+          f"(pid {node.proc.pid}), params {params}", flush=True)
+    deadline = time.monotonic() + 90
+    while pub.get_subscription_count() == 0 or part.count_publishers(f"{node.namespace}/odom") == 0:
+        if node.proc.poll() is not None or time.monotonic() > deadline:
+            print(node.output())
+            raise SystemExit("node did not come up")
+        time.sleep(0.1)
+    time.sleep(1.0)
+    while frames_q.qsize() < 20:  # a head start for the renderer
+        time.sleep(0.1)
+
+    published: dict[int, float] = {}
+    rss_trend: list[tuple[int, float]] = []
+    rss_start = None
+    period = 1.0 / args.rate
+    t_next = time.monotonic()
+    late_publishes = 0
+    crashed = False
+    while True:
+        item = frames_q.get()
+        if item is None:
+            break
+        i, msg = item
+        now = time.monotonic()
+        if now < t_next:
+            time.sleep(t_next - now)
+        elif now - t_next > period:
+            late_publishes += 1
+        t_next += period
+        published[i] = time.monotonic()
+        pub.publish(msg)
+        if node.proc.poll() is not None:
+            crashed = True
+            break
+        if i == 20:
+            rss_start = rss_mb(node.proc.pid)
+        if i % 250 == 0:
+            rss_trend.append((i, rss_mb(node.proc.pid)))
+            with lock:
+                n_out = len(received)
+            print(f"  frame {i:5d}: out {n_out:5d}, node RSS {rss_trend[-1][1]:.1f} MB, dropped "
+                  f"{diag.get('frames_dropped', '?')}", flush=True)
+    time.sleep(3.0)  # let the last frames through
+    rss_end = rss_mb(node.proc.pid)
+    with lock:
+        got = dict(received)
+        final_diag = dict(diag)
+        levels = dict(diag_level)
+    crashed = crashed or node.proc.poll() is not None
+    spinning = False
+    spin_thread.join(timeout=5)
+    log = ""
+    try:
+        log = node.stop()
+    except AssertionError as err:
+        crashed = True
+        log = str(err)
+    executor.shutdown()
+    part.destroy_node()
+    ctx.try_shutdown()
+
+    latencies = np.array([(got[k][0] - published[k]) * 1e3 for k in got if k in published])
+    nan_poses = sum(1 for v in got.values() if not v[2])
+    # frame-to-frame error between consecutive received frames against ground truth
+    ks = sorted(k for k in got if got[k][2])
+    t_err, r_err = [], []
+    for a, b in zip(ks, ks[1:]):
+        T_est = np.linalg.inv(got[a][1]) @ got[b][1]
+        T_true = np.linalg.inv(truth[a]) @ truth[b]
+        e = relative_error(T_est, T_true)
+        t_err.append(e[0])
+        r_err.append(e[1])
+    n_in, n_out = len(published), len(got)
+    print()
+    print(f"soak results ({datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.node()}, "
+          f"{os.cpu_count()} cores, python {platform.python_version()})")
+    print(f"  frames in (published)        {n_in}")
+    print(f"  frames out (Odometry)        {n_out}")
+    print(f"  lost (in - out)              {n_in - n_out}")
+    print(f"  node frames_received         {final_diag.get('frames_received', '?')}")
+    print(f"  node frames_processed        {final_diag.get('frames_processed', '?')}")
+    print(f"  node frames_dropped          {final_diag.get('frames_dropped', '?')} (latest-wins replacements)")
+    print(f"  node malformed/failed/dup    {final_diag.get('frames_malformed', '?')}/"
+          f"{final_diag.get('frames_failed', '?')}/{final_diag.get('frames_duplicate', '?')}")
+    print(f"  publisher late ticks         {late_publishes}")
+    if latencies.size:
+        print(f"  latency ms p50/p95/max       {np.percentile(latencies, 50):.1f} / {np.percentile(latencies, 95):.1f} / "
+              f"{latencies.max():.1f}   (publish -> Odometry received, end to end)")
+    print(f"  node latency ms mean/p95     {final_diag.get('latency_ms_mean', '?')} / "
+          f"{final_diag.get('latency_ms_p95', '?')}   (receive -> processed, last 200 frames)")
+    print(f"  node RSS MB start/end        {rss_start:.1f} / {rss_end:.1f}  (growth {rss_end - rss_start:+.1f} MB; "
+          f"start = after frame 20)")
+    print("  node RSS trend MB            " + ", ".join(f"{i}:{m:.0f}" for i, m in rss_trend))
+    print(f"  NaN poses                    {nan_poses}")
+    print(f"  crashes                      {int(crashed)}")
+    print(f"  diagnostics levels seen      {levels}  (0 OK, 1 WARN, 2 ERROR)")
+    if t_err:
+        print(f"  frame-to-frame error         mean {np.mean(t_err):.4f} m / {np.mean(r_err):.3f} deg, "
+              f"max {np.max(t_err):.3f} m / {np.max(r_err):.2f} deg")
+        dist = sum(np.linalg.norm(truth[b][:3, 3] - truth[a][:3, 3]) for a, b in zip(ks, ks[1:]))
+        T_end_err = np.linalg.inv(np.linalg.inv(truth[ks[0]]) @ truth[ks[-1]]) @ (
+            np.linalg.inv(got[ks[0]][1]) @ got[ks[-1]][1])
+        print(f"  end-point drift              {np.linalg.norm(T_end_err[:3, 3]):.2f} m over {dist:.0f} m")
+    if "Traceback" in log:
+        print(log[-3000:])
+    return 1 if crashed or nan_poses else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
