@@ -12,11 +12,13 @@ from line_odom.cli import main
 KITTI_00 = datasets.SHARED_DATA / "kitti_odometry_mini" / "sequences" / "00"
 TUM_DIR = datasets.SHARED_DATA / "tum_rgbd_fr1_xyz"
 
-# Loose but meaningful bounds on the pipeline (mean frame-to-frame RPE). KISS-ICP on the same frames: KITTI 00 at
-# 1/36 0.196 m / 0.157 deg; TUM fr1/xyz at 1/100 21.9 mm / 1.04 deg (DESIGN.md section 6). Ground truth motion:
-# KITTI 00 0.86 m per frame, so identity would score ~0.86 m; TUM ~1 cm per frame.
-KITTI_RPE_T, KITTI_RPE_R = 0.3, 0.5
-TUM_RPE_T, TUM_RPE_R = 0.03, 2.0
+# The pipeline's own bounds on the same frames (test/test_odometry_kitti.py, test/test_odometry_tum.py: about 2x
+# what it measured), so going through a bag and the node's message path must cost no accuracy. Measured through
+# replay: KITTI 00 at 1/36 0.12 m / 0.19 deg; TUM 30 frames at 1/100 5.4 mm / 0.47 deg. For scale: KITTI 00 moves
+# 0.86 m per frame (identity would score ~0.86 m); KISS-ICP gets 0.196 m / 0.157 deg at 1/36, 21.9 mm / 1.04 deg
+# on TUM at 1/100 (DESIGN.md section 6).
+KITTI_RPE_T, KITTI_RPE_R = 0.25, 0.40
+TUM_RPE_T, TUM_RPE_R = 0.008, 1.0
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +129,7 @@ def test_realtime_replay_over_dds(tmp_path, ros_env, tum_bags):
     m = _metrics(out)
     assert m["frames"] + m["frames_dropped"] == 30 and m["frames"] >= 20, m
     assert m["latency_mean_ms"] > 0 and m["latency_p95_ms"] < 5000
-    assert m["rpe_trans_mean_m"] < 2 * TUM_RPE_T, m
+    assert m["rpe_trans_mean_m"] < 2 * TUM_RPE_T, m  # skipped frames make longer steps for the motion model
     assert main(["replay", str(tum_bags["sqlite3"]), "--out", str(out), "--realtime", "--rate", "0"]) == 1
 
 
