@@ -78,6 +78,16 @@ def stamp_to_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
+def ns_to_stamp(ns: int):
+    """integer nanoseconds -> builtin_interfaces/Time."""
+    from builtin_interfaces.msg import Time
+
+    ns = int(ns)
+    if ns < 0:
+        raise ValueError(f"stamp: expected nanoseconds >= 0, got {ns}")
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
 def sec_to_stamp(seconds: float):
     """seconds -> builtin_interfaces/Time (rounded to the nanosecond)."""
     from builtin_interfaces.msg import Time

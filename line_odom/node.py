@@ -101,7 +101,10 @@ class LineOdomNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         self._declare_and_load()
         s = self.settings
-        self.processor = OdometryProcessor(self.config, s, logger=self.get_logger())
+        try:
+            self.processor = OdometryProcessor(self.config, s, logger=self.get_logger())
+        except ValueError as err:  # the engine rejected a setting
+            raise ParameterSetupError(f"the engine rejected the settings: {err}") from None
         self.processor.diagnostic_name = f"{self.get_fully_qualified_name()}: odometry"
         self._log_parameters()
 

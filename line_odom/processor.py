@@ -221,7 +221,7 @@ class OdometryProcessor:
 
     # ------------------------------------------------------------------ state
     def _clear_state(self) -> None:
-        self._last_stamp: float | None = None
+        self._last_stamp_ns: int | None = None
         self._engine_origin_inv: np.ndarray | None = None
         self._T_prev: np.ndarray | None = None
         self._cov_left = np.eye(6) * FIRST_POSE_VARIANCE
@@ -279,7 +279,7 @@ class OdometryProcessor:
             run = lambda stamp: self.engine.register_organized(cloud.xyz, stamp)  # noqa: E731
         else:
             run = lambda stamp: self.engine.register_points(cloud.xyz, stamp, ring=cloud.ring)  # noqa: E731
-        return self._register(run, cloud.stamp, cloud.frame_id, t0, receive_time)
+        return self._register(run, convert.stamp_to_ns(msg.header.stamp), cloud.frame_id, t0, receive_time)
 
     def process_depth(self, image, camera_info=None, receive_time: float | None = None) -> FrameOutput | None:
         """One depth Image (+ its CameraInfo, or the last valid one) -> outputs; None when dropped."""
@@ -295,19 +295,20 @@ class OdometryProcessor:
         if K is None:
             self._reject("frames_dropped", "no valid CameraInfo received yet for the depth image")
             return None
-        stamp = convert.stamp_to_sec(image.header.stamp)
-        return self._register(lambda s: self.engine.register_depth(depth, K, s), stamp,
+        return self._register(lambda s: self.engine.register_depth(depth, K, s), convert.stamp_to_ns(image.header.stamp),
                               str(image.header.frame_id), t0, receive_time)
 
     # ------------------------------------------------------------------ core
-    def _register(self, run, stamp: float, frame_id: str, t0: float, receive_time: float | None):
+    def _register(self, run, stamp_ns: int, frame_id: str, t0: float, receive_time: float | None):
+        stamp = stamp_ns * 1e-9
         with self._frame_lock:
             reset_reason = None
-            if self._last_stamp is not None and stamp == self._last_stamp:
+            last = self._last_stamp_ns
+            if last is not None and stamp_ns == last:
                 self._reject("frames_duplicate", f"stamp {stamp:.9f} repeats the previous frame's stamp")
                 return None
-            if self._last_stamp is not None and stamp < self._last_stamp:
-                reset_reason = (f"stamp went backwards from {self._last_stamp:.9f} to {stamp:.9f} s "
+            if last is not None and stamp_ns < last:
+                reset_reason = (f"stamp went backwards from {last * 1e-9:.9f} to {stamp:.9f} s "
                                 f"(looping bag or restarted clock?)")
                 self._warn(reset_reason + "; resetting odometry")
                 self.engine.reset()
@@ -324,7 +325,7 @@ class OdometryProcessor:
             if not (np.isfinite(pose).all() and np.isfinite(delta).all() and np.isfinite(cov).all()):
                 self._reject("frames_failed", "registration returned a non-finite pose or covariance")
                 return None
-            out = self._outputs(stamp, frame_id, pose, delta, cov, dict(result.stats))
+            out = self._outputs(stamp_ns, frame_id, pose, delta, cov, dict(result.stats))
             out.reset_reason = reset_reason
         end = time.perf_counter()
         out.latency_ms = 1e3 * ((time.monotonic() - receive_time) if receive_time is not None else (end - t0))
@@ -335,7 +336,8 @@ class OdometryProcessor:
         self.sensor_frame = frame_id or self.sensor_frame
         return out
 
-    def _outputs(self, stamp, frame_id, pose, delta, cov_delta, stats) -> FrameOutput:
+    def _outputs(self, stamp_ns, frame_id, pose, delta, cov_delta, stats) -> FrameOutput:
+        stamp = stamp_ns * 1e-9
         X, X_inv = self.T_base_sensor, self.T_sensor_base
         first = self._engine_origin_inv is None
         if first:
@@ -348,25 +350,25 @@ class OdometryProcessor:
             D = X @ delta @ X_inv  # base motion prev -> curr
             cov_d = frames.conjugate_covariance(cov_delta, X)  # left perturbation in the previous base frame
             self._cov_left = frames.symmetrize(self._cov_left + frames.conjugate_covariance(cov_d, self._T_prev))
-            dt = stamp - self._last_stamp
+            dt = (stamp_ns - self._last_stamp_ns) * 1e-9  # integer nanoseconds: exact for epoch stamps
             xi = frames.log_se3(D)
             twist = xi / dt
             J = frames.left_jacobian_inverse(xi)  # perturbation of log(D) from the left perturbation of D
             twist_cov = frames.symmetrize(J @ cov_d @ J.T) / (dt * dt)
         pose_cov = frames.left_to_ros_pose_covariance(self._cov_left, T)
         self._T_prev = T
-        self._last_stamp = stamp
-        odom, pose_stamped, tf = self._messages(stamp, T, pose_cov, twist, twist_cov)
+        self._last_stamp_ns = stamp_ns
+        odom, pose_stamped, tf = self._messages(stamp_ns, T, pose_cov, twist, twist_cov)
         self._path_poses.append(pose_stamped)
         path = self._path_message(pose_stamped.header)
         return FrameOutput(stamp, T, pose_cov, twist, twist_cov, stats, 0.0, odom, path, tf)
 
     # ------------------------------------------------------------------ messages
-    def _messages(self, stamp, T, pose_cov, twist, twist_cov):
+    def _messages(self, stamp_ns, T, pose_cov, twist, twist_cov):
         from geometry_msgs.msg import PoseStamped, TransformStamped
         from nav_msgs.msg import Odometry
 
-        stamp_msg = convert.sec_to_stamp(stamp)
+        stamp_msg = convert.ns_to_stamp(stamp_ns)
         q = frames.quaternion_xyzw(T[:3, :3])
         odom = Odometry()
         odom.header.stamp = stamp_msg

@@ -103,7 +103,7 @@ class Harness:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("node_test_harness_" + uuid.uuid4().hex[:6], context=self.context)
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()
         self.odom: list = []
         self.paths: list = []
         self.tf: list = []
