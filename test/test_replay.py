@@ -143,3 +143,20 @@ def test_demo_small(tmp_path, capsys):
     for name in ("street", "room"):
         assert (tmp_path / "demo" / name / "trajectory.png").exists()
         assert results[name]["rpe_trans_mean_m"] < (0.2 if name == "street" else 0.02), results[name]
+
+
+def test_demo_command_end_to_end(tmp_path, capsys):
+    """The README's main job, as a user runs it: both simulated runs through the node, with the KITTI metric on the
+    120 m drive."""
+    out = tmp_path / "demo_out"
+    assert main(["demo", "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "KITTI t_err" in printed and "summary" in printed
+    street = json.loads((out / "street" / "metrics.json").read_text())
+    room = json.loads((out / "room" / "metrics.json").read_text())
+    assert street["frames"] == 120 and street["frames_dropped"] == 0 and street["path_length_m"] > 100
+    assert street["kitti_t_err_pct"] < 2.0 and street["rpe_trans_mean_m"] < 0.05, street
+    assert room["frames"] == 90 and room["rpe_trans_mean_m"] < 0.01, room
+    for name in ("street", "room"):
+        assert (out / name / "trajectory.png").stat().st_size > 10_000
+        assert (out / name / "input_bag" / "metadata.yaml").exists()
