@@ -147,17 +147,16 @@ int solve_3l1p(const std::array<PluckerLine, 3>& lines_a, const std::array<Pluck
     }
     // null vector (1, t1, t2): the best-conditioned pair of rows
     int bi = 0, bj = 1;
-    double best = 0.0;
+    double det2 = 0.0;
     for (int i = 0; i < 3; ++i) {
       const int j = (i + 1) % 3;
-      const double det2 = B[i] * C[j] - B[j] * C[i];
-      if (std::abs(det2) > std::abs(best)) {
-        best = det2;
-        bi = std::min(i, j);
-        bj = std::max(i, j);
+      const double d = B[i] * C[j] - B[j] * C[i];
+      if (std::abs(d) > std::abs(det2)) {
+        det2 = d;
+        bi = i;
+        bj = j;
       }
     }
-    const double det2 = B[bi] * C[bj] - B[bj] * C[bi];
     if (!(std::abs(det2) > kMinPairDeterminant)) continue;
     const double t1 = (A[bj] * C[bi] - A[bi] * C[bj]) / det2;
     const double t2 = (A[bi] * B[bj] - A[bj] * B[bi]) / det2;
