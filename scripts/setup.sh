@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The one set-up path of line_odom (`make setup`; `make demo` and `make test` run it first).
 #
-#   1. system tools the C++ engine needs (g++, cmake, Eigen headers) - apt-get when missing
-#   2. .venv in the repository root with CPython 3.11 (the ROS 2 Jazzy wheels are built for 3.11)
+#   1. CPython 3.11 (the ROS 2 Jazzy wheels are built for 3.11); PYTHON=/path/to/python3.11 to choose
+#   2. system packages the build needs (g++, cmake, Eigen headers, Python headers, venv) - apt-get when
+#      missing - and .venv in the repository root
 #   3. pinned Python dependencies: requirements/dev.txt under the constraints requirements/lock.txt
 #   4. tf2_msgs built into the venv when `import tf2_msgs.msg` fails (scripts/build_tf2_msgs.sh)
 #   5. line_odom itself, editable (pip install -e .), with the engine extension built in place
@@ -10,7 +11,6 @@
 # Every step is skipped when its result is present and its inputs (hashed into .venv/.setup/) are
 # unchanged, so re-running takes seconds and changes nothing. After it, .venv/bin/python runs
 # everything; no environment variables are needed.
-# Environment: PYTHON=/path/to/python3.11 picks the interpreter for a new .venv.
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -46,7 +46,20 @@ if command -v flock >/dev/null 2>&1; then
     flock 9
 fi
 
-# ---- 1. system packages --------------------------------------------------------------------------
+# ---- 1. the interpreter: CPython 3.11 (the ROS 2 Jazzy wheels are cp311) -------------------------
+is_py311() { "$1" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1; }
+base=""
+if [ ! -x "$PY" ]; then
+    for cand in "${PYTHON:-}" python3 python3.11; do
+        [ -n "$cand" ] && command -v "$cand" >/dev/null 2>&1 && is_py311 "$cand" && { base="$(command -v "$cand")"; break; }
+    done
+    [ -n "$base" ] || die "CPython 3.11 not found (python3 is $(python3 --version 2>&1 || echo missing)). The ROS 2 Jazzy wheels need 3.11: install it (apt-get install python3.11 python3.11-venv python3.11-dev, or pyenv) or set PYTHON=/path/to/python3.11."
+else
+    is_py311 "$PY" || die ".venv does not run CPython 3.11; remove it (rm -rf .venv) and re-run."
+fi
+interp="${base:-$PY}"
+
+# ---- 2. system packages --------------------------------------------------------------------------
 eigen_found() {
     local d
     for d in "${EIGEN3_INCLUDE_DIR:-}" /usr/include/eigen3 /usr/local/include/eigen3; do
@@ -54,14 +67,19 @@ eigen_found() {
     done
     return 1
 }
+python_headers_found() {
+    "$interp" -c 'import os, sys, sysconfig; sys.exit(not os.path.isfile(os.path.join(sysconfig.get_paths()["include"], "Python.h")))' 2>/dev/null
+}
 missing=()
 command -v g++ >/dev/null 2>&1 || missing+=(g++)
 command -v cmake >/dev/null 2>&1 || missing+=(cmake)
 eigen_found || missing+=(libeigen3-dev)
+python_headers_found || missing+=(python3.11-dev)
+if [ -n "$base" ] && ! "$base" -c 'import ensurepip' >/dev/null 2>&1; then missing+=(python3.11-venv); fi
 if [ "${#missing[@]}" -gt 0 ]; then
     say "installing system packages: ${missing[*]}"
     if ! command -v apt-get >/dev/null 2>&1; then
-        die "missing ${missing[*]} and apt-get is not available: install g++, cmake and the Eigen 3 headers with your package manager (or set EIGEN3_INCLUDE_DIR to the directory holding Eigen/Core), then re-run."
+        die "missing ${missing[*]} and apt-get is not available: install g++, cmake, the Eigen 3 headers (or set EIGEN3_INCLUDE_DIR to the directory holding Eigen/Core) and Python 3.11's headers and venv module with your package manager, then re-run."
     fi
     if [ "$(id -u)" -eq 0 ]; then
         SUDO=()
@@ -76,20 +94,14 @@ if [ "${#missing[@]}" -gt 0 ]; then
     "${SUDO[@]}" apt-get install -y -q --no-install-recommends "${missing[@]}" </dev/null >/dev/null \
         || die "apt-get install ${missing[*]} failed; install them yourself, then re-run."
     eigen_found || die "Eigen headers still not found after installing libeigen3-dev."
+    python_headers_found || die "Python.h of $interp still not found after installing python3.11-dev."
 fi
 
-# ---- 2. the virtual environment ------------------------------------------------------------------
-is_py311() { "$1" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1; }
-if [ ! -x "$PY" ]; then
-    base=""
-    for cand in "${PYTHON:-}" python3 python3.11; do
-        [ -n "$cand" ] && command -v "$cand" >/dev/null 2>&1 && is_py311 "$cand" && { base="$cand"; break; }
-    done
-    [ -n "$base" ] || die "CPython 3.11 not found (python3 is $(python3 --version 2>&1 || echo missing)). The ROS 2 Jazzy wheels need 3.11: install it (apt-get install python3.11 python3.11-venv, or pyenv) or set PYTHON=/path/to/python3.11."
-    say "creating .venv with $(command -v "$base") ($("$base" --version 2>&1))"
+# ---- the virtual environment ---------------------------------------------------------------------
+if [ -n "$base" ]; then
+    say "creating .venv with $base ($("$base" --version 2>&1))"
     "$base" -m venv "$VENV" || die "could not create .venv (on Debian/Ubuntu: apt-get install python3.11-venv)."
 fi
-is_py311 "$PY" || die ".venv does not run CPython 3.11; remove it (rm -rf .venv) and re-run."
 
 # ---- 3. pinned Python dependencies ---------------------------------------------------------------
 deps_fp="$(fingerprint "$REQ/base.txt" "$REQ/dev.txt" "$REQ/lock.txt")"
