@@ -121,18 +121,25 @@ fi
 
 # ---- 5. line_odom, editable, engine built in place -----------------------------------------------
 pkg_fp="$(fingerprint setup.py setup.cfg package.xml)"
-mapfile -t engine_sources < <(find line_odom_core/cpp -type f \( -name '*.cpp' -o -name '*.hpp' -o -name '*.h' \) | LC_ALL=C sort)
-engine_fp="$(fingerprint setup.py "${engine_sources[@]}")"
+mapfile -t engine_headers < <(find line_odom_core/cpp -type f \( -name '*.hpp' -o -name '*.h' \) | LC_ALL=C sort)
+mapfile -t engine_sources < <(find line_odom_core/cpp -type f -name '*.cpp' | LC_ALL=C sort)
+headers_fp="$(fingerprint setup.py "${engine_headers[@]}")"
+engine_fp="$(fingerprint setup.py "${engine_headers[@]}" "${engine_sources[@]}")"
 ext_present() { compgen -G "line_odom_core/_core.cpython-*.so" >/dev/null; }
 if ! stamp_ok package "$pkg_fp" || ! (cd / && "$PY" -c 'import line_odom' >/dev/null 2>&1); then
     say "installing line_odom (editable) and building the C++ engine (about a minute)"
     pip_quiet install --no-build-isolation --no-deps -e "$ROOT" || die "pip install -e . failed"
     stamp_set package "$pkg_fp"
+    stamp_set headers "$headers_fp"
     stamp_set engine "$engine_fp"
 elif ! stamp_ok engine "$engine_fp" || ! ext_present; then
-    say "engine sources changed: rebuilding line_odom_core._core"
-    "$PY" setup.py -q build_ext --inplace --force --build-temp build/tmp_setup --build-lib build/lib_setup \
+    # .cpp changes only: recompile the .cpp files newer than their objects; a header change: everything
+    force=(--force)
+    stamp_ok headers "$headers_fp" && ext_present && force=()
+    say "engine sources changed: rebuilding line_odom_core._core${force[*]:+ (headers changed: full rebuild)}"
+    "$PY" setup.py -q build_ext --inplace "${force[@]}" --build-temp build/tmp_setup --build-lib build/lib_setup \
         || die "building line_odom_core._core failed"
+    stamp_set headers "$headers_fp"
     stamp_set engine "$engine_fp"
 fi
 
