@@ -34,6 +34,32 @@ def benchmark_solver(solver: str, instances: int = 1000, repetitions: int = 5, s
     consecutive calls (0: auto). Keys: solver, method, instances, repetitions, median_us, p90_us, min_us, mean_us,
     chunk, solutions_per_call, found_rate, no_solution_rate, median_error, p99_error, mean_iterations."""
 
+def estimate_motion(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, planes_a: npt.ArrayLike | None,
+                    planes_b: npt.ArrayLike | None, *, segments_a: npt.ArrayLike | None = None,
+                    segments_b: npt.ArrayLike | None = None, weights: npt.ArrayLike | None = None,
+                    clusters: npt.ArrayLike | None = None, init: npt.ArrayLike | None = None,
+                    options: dict[str, Any] = {}) -> tuple[npt.NDArray[np.float64], dict[str, Any]]:
+    """Hybrid RANSAC over {7L, 3L1P, 1L2P} + robust refinement (paper 6.3). Row i of lines_a (N,6) is a candidate
+    intersection with row i of lines_b; planes (M,4) likewise; segments (N,2,3) (7L; built from the lines when
+    absent); weights (N,) >= 0; clusters (N,) int in {-1,0,1,2}; init (4,4) (None = identity).
+    options: solver ("auto", "7L", "3L1P", "1L2P"), max_iterations, min_iterations, confidence, inlier_threshold,
+    plane_angle_threshold_deg, plane_distance_threshold, refine_iterations, huber_delta, seed, min_inliers,
+    degeneracy_threshold, local_optimisation, pretest, solve_7l_method, solve_7l_max_iterations.
+    Returns (T_ab (4,4), stats); T_ab = init when stats["success"] is False. stats keys: success, inliers,
+    inlier_weight, plane_inliers, iterations, models, solver_counts (new-best hypotheses per solver),
+    solver_iterations (samples per solver), best_solver (str | None), covariance (6,6; x y z rx ry rz; left
+    perturbation), residual_rms, degenerate, condition, dropped_line_pairs, dropped_plane_pairs,
+    line_inlier_mask (N,), plane_inlier_mask (M,)."""
+
+def _ransac_fit_line_2d(points: npt.ArrayLike, threshold: float, *, weights: npt.ArrayLike | None = None,
+                        max_iterations: int = 1000, min_iterations: int = 0, confidence: float = 0.999,
+                        seed: int = 0, local_optimisation: bool = True
+                        ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
+def _ransac_translation_2d(points_a: npt.ArrayLike, points_b: npt.ArrayLike, directions: npt.ArrayLike,
+                           projections: npt.ArrayLike, threshold: float, *, max_iterations: int = 1000,
+                           min_iterations: int = 0, confidence: float = 0.999, seed: int = 0
+                           ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
+
 # ---- odometry pipeline (issue 4) ----
 
 class FrameResult:

@@ -178,3 +178,154 @@ def test_recovers_pose_with_noise_and_half_outliers(solver, seed):
     np.testing.assert_allclose(cov, cov.T, atol=1e-15)
     assert np.linalg.eigvalsh(cov).min() > 0
     assert not stats["degenerate"]
+
+
+def assert_failed_cleanly(T, stats, init):
+    assert not stats["success"]
+    np.testing.assert_array_equal(T, np.eye(4) if init is None else init)
+    assert np.all(np.isfinite(stats["covariance"])) and np.isfinite(stats["residual_rms"])
+
+
+@pytest.mark.parametrize("solver", ["auto", "7L", "3L1P", "1L2P"])
+def test_too_few_pairs(solver):
+    T_true, args, _ = make_scene(8, n_true=4, outlier_ratio=0.0)
+    args["planes_a"], args["planes_b"] = args["planes_a"][:1], args["planes_b"][:1]
+    init = guess_near(T_true, 8)
+    T, stats = call(args, init=init, options={**OPTIONS, "solver": solver})
+    assert_failed_cleanly(T, stats, init)
+    # nothing at all
+    T, stats = estimate_motion(np.zeros((0, 6)), np.zeros((0, 6)), np.zeros((0, 4)), np.zeros((0, 4)))
+    assert_failed_cleanly(T, stats, None)
+    assert stats["iterations"] == 0 and stats["best_solver"] is None
+
+
+@pytest.mark.parametrize("solver", ["auto", "7L", "3L1P", "1L2P"])
+def test_all_pairs_on_one_plane_direction_is_degenerate(solver):
+    # lines on two parallel floors: sliding along the floor and turning about its normal change nothing
+    floors = [((0.0, 0.0, 1.0), 1.7, 0), ((0.0, 0.0, 1.0), -4.0, 0)]
+    T_true, args, true_mask = make_scene(9, surfaces=floors, plane_outliers=False)
+    init = guess_near(T_true, 9)
+    T, stats = call(args, init=init, options={**OPTIONS, "solver": solver})
+    assert_failed_cleanly(T, stats, init)
+    if solver != "1L2P":  # 1L2P has no two non-parallel planes here and finds nothing at all
+        assert stats["degenerate"] and stats["condition"] < 1e-3
+        assert stats["inliers"] > 0.8 * true_mask.sum()
+
+
+def test_1l2p_without_planes_finds_nothing_but_auto_falls_back_to_7l():
+    T_true, args, _ = make_scene(10)
+    args["planes_a"], args["planes_b"] = np.zeros((0, 4)), np.zeros((0, 4))
+    init = guess_near(T_true, 10)
+    for solver in ("1L2P", "3L1P"):
+        T, stats = call(args, init=init, options={**OPTIONS, "solver": solver})
+        assert_failed_cleanly(T, stats, init)
+        assert stats["iterations"] == 0
+    T, stats = call(args, init=init, options={**OPTIONS, "solver": "auto"})
+    assert stats["success"] and stats["best_solver"] == "7L"
+    dt, dr = pose_error(T, T_true)
+    assert dt < 0.02 and dr < 0.2
+
+
+def test_7l_builds_segments_from_lines_when_none_are_given():
+    T_true, args, _ = make_scene(11)
+    del args["segments_a"], args["segments_b"]
+    T, stats = call(args, init=guess_near(T_true, 11), options={**OPTIONS, "solver": "7L"})
+    assert stats["success"] and stats["best_solver"] == "7L"
+    dt, dr = pose_error(T, T_true)
+    assert dt < 0.02 and dr < 0.2
+
+
+def test_without_weights_and_clusters():
+    T_true, args, _ = make_scene(12)
+    del args["weights"], args["clusters"]
+    T, stats = call(args, options=OPTIONS)
+    assert stats["success"]
+    dt, dr = pose_error(T, T_true)
+    assert dt < 0.02 and dr < 0.2
+    assert stats["inlier_weight"] == stats["inliers"]
+
+
+def test_same_seed_same_answer():
+    T_true, args, _ = make_scene(13)
+    init = guess_near(T_true, 13)
+    first = call(args, init=init, options={**OPTIONS, "seed": 42})
+    for _ in range(2):
+        again = call(args, init=init, options={**OPTIONS, "seed": 42})
+        np.testing.assert_array_equal(again[0], first[0])
+        for key, value in first[1].items():
+            np.testing.assert_array_equal(again[1][key], value, err_msg=key)
+    other = [call(args, init=init, options={**OPTIONS, "seed": s})[1]["iterations"] for s in range(43, 48)]
+    assert any(n != first[1]["iterations"] for n in other)
+
+
+def test_covariance_shrinks_with_more_data_and_scales_with_noise():
+    sd = {}
+    for n_true, noise in ((100, 0.01), (800, 0.01), (800, 0.003)):
+        T_true, args, _ = make_scene(14, n_true=n_true, noise=noise)
+        _, stats = call(args, init=guess_near(T_true, 14), options=OPTIONS)
+        assert stats["success"]
+        sd[n_true, noise] = np.sqrt(np.diag(stats["covariance"]))
+    assert np.all(sd[800, 0.01] < sd[100, 0.01])
+    assert np.all(sd[800, 0.003] < 0.6 * sd[800, 0.01])
+
+
+def test_inputs_are_validated():
+    T_true, args, _ = make_scene(15, n_true=20)
+    la, lb, pa, pb = args["lines_a"], args["lines_b"], args["planes_a"], args["planes_b"]
+    with pytest.raises(ValueError, match=r"lines_a.*\(N, 6\)"):
+        estimate_motion(la[:, :5], lb, pa, pb)
+    with pytest.raises(ValueError, match=r"lines_b.*\(40, 6\)"):
+        estimate_motion(la, lb[:-1], pa, pb)
+    with pytest.raises(ValueError, match="lines_b"):
+        estimate_motion(la, lb.astype(complex), pa, pb)
+    with pytest.raises(ValueError, match=r"planes_a.*\(M, 4\)"):
+        estimate_motion(la, lb, pa[:, :3], pb)
+    with pytest.raises(ValueError, match="planes_b"):
+        estimate_motion(la, lb, pa, pb[:-1])
+    with pytest.raises(ValueError, match="segments_b"):
+        estimate_motion(la, lb, pa, pb, segments_a=args["segments_a"])
+    with pytest.raises(ValueError, match=r"segments_a.*\(40, 2, 3\)"):
+        estimate_motion(la, lb, pa, pb, segments_a=args["segments_a"][:, :1], segments_b=args["segments_b"])
+    with pytest.raises(ValueError, match="weights"):
+        estimate_motion(la, lb, pa, pb, weights=np.ones(39))
+    with pytest.raises(ValueError, match="weights"):
+        estimate_motion(la, lb, pa, pb, weights=-np.ones(40))
+    with pytest.raises(ValueError, match="clusters"):
+        estimate_motion(la, lb, pa, pb, clusters=np.full(40, 3))
+    with pytest.raises(ValueError, match="clusters"):
+        estimate_motion(la, lb, pa, pb, clusters=np.zeros(40))
+    with pytest.raises(ValueError, match="init"):
+        estimate_motion(la, lb, pa, pb, init=2 * np.eye(4))
+    with pytest.raises(ValueError, match="init"):
+        estimate_motion(la, lb, pa, pb, init=np.eye(3))
+    bad = la.copy()
+    bad[3, 2] = np.nan
+    with pytest.raises(ValueError, match="lines_a"):
+        estimate_motion(bad, lb, pa, pb)
+
+
+@pytest.mark.parametrize("options,name", [
+    ({"solver": "5L"}, "solver"), ({"solver": 1}, "solver"), ({"max_iterations": -1}, "max_iterations"),
+    ({"max_iterations": 2.5}, "max_iterations"), ({"confidence": 1.5}, "confidence"),
+    ({"inlier_threshold": 0.0}, "inlier_threshold"), ({"inlier_threshold": float("nan")}, "inlier_threshold"),
+    ({"plane_angle_threshold_deg": "3"}, "plane_angle_threshold_deg"), ({"seed": -1}, "seed"),
+    ({"local_optimisation": 1}, "local_optimisation"), ({"solve_7l_method": "newton"}, "solve_7l_method"),
+    ({"refine_iterations": True}, "refine_iterations"), ({"inlier_treshold": 0.02}, "inlier_treshold"),
+])
+def test_options_are_validated(options, name):
+    T_true, args, _ = make_scene(16, n_true=20)
+    with pytest.raises(ValueError, match=name):
+        call(args, options=options)
+
+
+def test_every_option_is_accepted():
+    T_true, args, _ = make_scene(17)
+    options = {"solver": "auto", "max_iterations": 500, "min_iterations": 10, "confidence": 0.99,
+               "inlier_threshold": 0.03, "plane_angle_threshold_deg": 2.0, "plane_distance_threshold": 0.05,
+               "refine_iterations": 5, "huber_delta": 0.015, "seed": 2**64 - 1, "min_inliers": 20,
+               "degeneracy_threshold": 1e-4, "local_optimisation": False, "pretest": False,
+               "solve_7l_method": "alternating_projection", "solve_7l_max_iterations": 2000}
+    T, stats = call(args, init=guess_near(T_true, 17), options=options)
+    assert stats["success"] and stats["iterations"] <= 500
+    dt, dr = pose_error(T, T_true)
+    assert dt < 0.02 and dr < 0.2

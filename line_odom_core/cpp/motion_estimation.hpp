@@ -36,7 +36,7 @@ struct MotionOptions {
   double huber_delta = 0.0;           // 0: use inlier_threshold
   std::uint64_t seed = 0;
   int min_inliers = 10;               // success needs at least this many line-pair inliers after refinement
-  double degeneracy_threshold = 1e-5;  // degenerate when the scaled J^T W J is worse conditioned than this
+  double degeneracy_threshold = 1e-3;  // degenerate when the scaled J^T W J is worse conditioned than this
   bool local_optimisation = true;     // refine every new best hypothesis on its inliers (LO-RANSAC)
   bool pretest = true;                // score a random subset first and drop clearly worse hypotheses
   Solve7LMethod solve_7l_method = Solve7LMethod::kGaussNewton;

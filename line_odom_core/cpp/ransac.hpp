@@ -33,9 +33,9 @@
 //   };
 //   bool ok = hybrid_ransac(est, options, &best, &stats);
 //
-// Each iteration picks a solver with probability proportional to prior * P(all-inlier sample), where
-// P = prod_t inlier_fraction_t ^ sample_size(solver, t) under the best model so far (the prior alone until
-// a model exists). The loop stops after min_iterations once the probability that every sample drawn so far
+// Each iteration picks a solver with probability proportional to prior * max(P, min_solver_share * max P),
+// where P = prod_t inlier_fraction_t ^ sample_size(solver, t) under the best model so far (the prior alone
+// until a model exists). The loop stops after min_iterations once the probability that every sample drawn so far
 // contained an outlier, prod_s (1 - P_s)^(samples of s), falls below 1 - confidence. `score` receives the
 // best value so far so it may stop early (return anything <= to_beat) once it cannot win. With
 // local_optimisation, every new best model is passed to `refine` and kept refined if it scores no worse.
@@ -58,6 +58,7 @@ struct RansacOptions {
   double confidence = 0.999;  // stop when P(no all-inlier sample yet) < 1 - confidence
   std::uint64_t seed = 0;
   bool local_optimisation = true;
+  double min_solver_share = 0.05;  // hybrid: each solver is chosen with weight >= this times the best one's
 };
 
 constexpr int kRansacMaxDataTypes = 4;
@@ -238,11 +239,19 @@ bool hybrid_ransac(E& est, const RansacOptions& options, typename E::Model* best
   bool have_best = false;
 
   auto update_probabilities = [&]() {
-    for (int s = 0; s < S; ++s)
+    double top = 0.0;
+    for (int s = 0; s < S; ++s) {
       p_all_inlier[s] = prior[s] > 0.0 ? ransac_detail::all_inlier_probability(est, s, stats.best_score) : 0.0;
+      top = std::max(top, p_all_inlier[s]);
+    }
+    // A solver whose data the best model so far happens to miss keeps a share, or it could never show better.
+    const double floor = std::clamp(options.min_solver_share, 0.0, 1.0) * top;
     double sum = 0.0;
-    for (int s = 0; s < S; ++s) sum += prior[s] * p_all_inlier[s];
-    for (int s = 0; s < S; ++s) choice[s] = sum > 0.0 ? prior[s] * p_all_inlier[s] / sum : prior[s] / prior_sum;
+    for (int s = 0; s < S; ++s) {
+      choice[s] = prior[s] * std::max(p_all_inlier[s], floor);
+      sum += choice[s];
+    }
+    for (int s = 0; s < S; ++s) choice[s] = sum > 0.0 ? choice[s] / sum : prior[s] / prior_sum;
   };
   update_probabilities();
 

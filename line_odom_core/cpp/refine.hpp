@@ -20,7 +20,7 @@ struct RefineOptions {
   double plane_distance_threshold = 0.05;       // inlier gate: |delta_a - delta_b'| (m)
   double huber_delta = 0.02;                    // Huber knee on the (metre) residuals
   double min_line_sine = 0.05;                  // pairs closer to parallel give no constraint
-  double degeneracy_threshold = 1e-5;           // smallest / largest eigenvalue of the scaled J^T W J
+  double degeneracy_threshold = 1e-3;           // smallest / largest eigenvalue of the scaled J^T W J
   bool compute_covariance = true;
 };
 
