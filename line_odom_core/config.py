@@ -115,6 +115,8 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("ransac.refine_iterations", int, 10, "least-squares iterations on all inliers", 0, 1000),
     ConfigEntry("ransac.huber_delta", float, 0.0, "robust loss width of the refinement (m); 0 = inlier "
                 "threshold", 0.0, 10.0),
+    ConfigEntry("ransac.degeneracy_threshold", float, 1e-5, "the refinement is degenerate when its normal matrix "
+                "(rotations scaled to metres) is worse conditioned than this", 0.0, 1.0),
     ConfigEntry("registration.passes", int, 3, "candidate + RANSAC passes per frame, each seeded with the best "
                 "estimate so far (paper §6.3: 3)", 1, 10),
     ConfigEntry("registration.pass_distance_scale", float, 1.0, "candidate distance multiplier from one pass to "
@@ -133,6 +135,13 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("registration.coarse_downsample", int, 6, "while there is no velocity (first motion after start "
                 "or reset), register the scans downsampled by this step first and start from that estimate "
                 "(0 or <= downsample: off)", 0, 64),
+    ConfigEntry("registration.covariance_scale", float, 1.0, "multiplies the refinement's covariance before it is "
+                "reported and fused (the least-squares covariance ignores wrong candidate pairs)", 1e-6, 1e9),
+    ConfigEntry("registration.motion_prior_translation_sigma", float, 0.0, "1-sigma deviation (m per frame) from "
+                "the constant-velocity prediction; > 0 fuses the estimate with the prediction so poorly observed "
+                "directions follow the motion model (0 = off)", 0.0, 100.0),
+    ConfigEntry("registration.motion_prior_rotation_sigma_deg", float, 0.5, "1-sigma deviation (deg per frame) "
+                "from the constant-velocity prediction, used with motion_prior_translation_sigma", 1e-6, 180.0),
     ConfigEntry("registration.fallback_translation_sigma", float, 0.5, "1-sigma translation uncertainty (m) "
                 "reported when the prediction is held", 0.0, 1000.0),
     ConfigEntry("registration.fallback_rotation_sigma_deg", float, 5.0, "1-sigma rotation uncertainty (deg) "

@@ -300,7 +300,30 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     std::string failure = outcome.failure;
     if (have && !best_stats.degenerate && best_stats.covariance.allFinite()) {
       result.delta = best;
-      result.covariance = best_stats.covariance;
+      result.covariance = best_stats.covariance * reg.covariance_scale;
+      if (have_velocity_ && reg.motion_prior_translation_sigma > 0.0) {
+        // MAP fusion with the constant-velocity prior on the left perturbation exp(xi) * prediction: directions
+        // the lines observe poorly (large covariance) stay with the prediction.
+        const RigidTransform D = best * prediction.inverse();
+        Vec6 xi;
+        xi.head<3>() = D.t;
+        const Eigen::AngleAxisd aa(D.R);
+        xi.tail<3>() = aa.angle() * aa.axis();
+        const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
+        Mat6 prior = Mat6::Zero();
+        prior.diagonal() << pt * pt, pt * pt, pt * pt, pr * pr, pr * pr, pr * pr;
+        const Mat6 gain = prior * (prior + result.covariance).inverse();
+        const Vec6 fused = gain * xi;
+        if (fused.allFinite()) {
+          RigidTransform step;
+          const double angle = fused.tail<3>().norm();
+          if (angle > 1e-15) step.R = Eigen::AngleAxisd(angle, fused.tail<3>() / angle).toRotationMatrix();
+          step.t = fused.head<3>();
+          result.delta = step * prediction;
+          result.covariance = (Mat6::Identity() - gain) * result.covariance;
+          result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
+        }
+      }
       st.solver = solver_name(best_stats.best_solver);
       st.registered = true;
     } else {
@@ -370,6 +393,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("ransac.plane_distance_threshold", c.ransac.plane_distance_threshold);
   visit("ransac.refine_iterations", c.ransac.refine_iterations);
   visit("ransac.huber_delta", c.ransac.huber_delta);
+  visit("ransac.degeneracy_threshold", c.ransac.degeneracy_threshold);
   visit("registration.passes", c.registration.passes);
   visit("registration.pass_distance_scale", c.registration.pass_distance_scale);
   visit("registration.min_inliers", c.registration.min_inliers);
@@ -378,6 +402,9 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.constant_velocity", c.registration.constant_velocity);
   visit("registration.guess_preference", c.registration.guess_preference);
   visit("registration.coarse_downsample", c.registration.coarse_downsample);
+  visit("registration.covariance_scale", c.registration.covariance_scale);
+  visit("registration.motion_prior_translation_sigma", c.registration.motion_prior_translation_sigma);
+  visit("registration.motion_prior_rotation_sigma_deg", c.registration.motion_prior_rotation_sigma_deg);
   visit("registration.fallback_translation_sigma", c.registration.fallback_translation_sigma);
   visit("registration.fallback_rotation_sigma_deg", c.registration.fallback_rotation_sigma_deg);
 }

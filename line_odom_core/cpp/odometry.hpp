@@ -29,6 +29,9 @@ struct RegistrationOptions {
   bool constant_velocity = true;        // false: predict identity
   double guess_preference = 0.0;        // the RANSAC winner must beat the refined guess's weighted inliers by
                                         // this fraction to replace it
+  double covariance_scale = 1.0;        // multiplies the refinement's covariance (it ignores candidate errors)
+  double motion_prior_translation_sigma = 0.0;  // constant-velocity prior per frame (m); 0: no fusion
+  double motion_prior_rotation_sigma_deg = 0.5;
   int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / <= downsample: off)
   double fallback_translation_sigma = 0.5;    // covariance reported when the prediction is held
   double fallback_rotation_sigma_deg = 5.0;
