@@ -1,0 +1,229 @@
+"""Degenerate scenes from the simulator (line_odom.sim): empty space, only a ground plane, an endless featureless
+corridor, everything beyond range, a single wall, heavy noise, a frame identical to the previous one.
+
+The odometry must never produce NaN/inf and never claim a confident wrong pose: when the geometry does not
+constrain the motion, the pose is held by the constant-velocity motion model, the covariance is inflated to at
+least the configured fallback and the result says ``degenerate`` — and so do the node's diagnostics. When
+structure returns, the frame-to-frame error is back within bounds.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import line_odom_core
+from line_odom import convert, sim
+from line_odom.processor import OdometryProcessor
+
+FRAMES = 5
+# HDL-64E at 1/36 (the sparse setting the pipeline is built for) keeps the runs fast.
+OVERRIDES = {"downsample": 6}
+TRANSLATION_BOUND = 0.10  # m, frame-to-frame on structured street frames (1 m per frame, noise-free)
+ROTATION_BOUND = 0.5  # deg
+
+
+def make_config():
+    return line_odom_core.load_config("kitti_hdl64", OVERRIDES)
+
+
+def frame_error(delta: np.ndarray, true_delta: np.ndarray) -> tuple[float, float]:
+    E = np.linalg.inv(true_delta) @ delta
+    angle = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(E[:3, 3])), float(angle)
+
+
+def register(odom, frame):
+    return odom.register_points(frame.data.points, frame.stamp, ring=frame.data.ring)
+
+
+def check_finite(res):
+    for name in ("pose", "delta", "covariance", "twist"):
+        assert np.isfinite(getattr(res, name)).all(), f"{name} not finite"
+    C = res.covariance
+    np.testing.assert_allclose(C, C.T, atol=1e-12)
+    assert np.linalg.eigvalsh(C).min() >= -1e-12
+
+
+def check_held(res, prev_delta, config):
+    """A degenerate frame: flag, reason, the motion model's prediction (constant velocity, equal stamp steps) and
+    a covariance no smaller than the configured fallback."""
+    assert res.degenerate and res.stats["solver"] == "prediction" and res.stats["failure"], res.stats
+    np.testing.assert_allclose(res.delta, prev_delta, atol=1e-9)
+    ts = config["registration.fallback_translation_sigma"]
+    rs = np.radians(config["registration.fallback_rotation_sigma_deg"])
+    diag = np.diag(res.covariance)
+    assert (diag[:3] >= ts ** 2 * (1 - 1e-9)).all() and (diag[3:] >= rs ** 2 * (1 - 1e-9)).all(), diag
+
+
+@pytest.mark.parametrize("kind, kwargs", [
+    ("empty", {}),
+    ("ground", {}),
+    ("corridor", {}),
+    ("far", {}),
+    ("wall", {}),
+])
+def test_degenerate_scene_holds_the_motion_model_with_inflated_covariance(kind, kwargs):
+    config = make_config()
+    odom = line_odom_core.Odometry(config)
+    run = sim.make(kind, frames=FRAMES, seed=0, **kwargs)
+    frames = list(run)
+    first = register(odom, frames[0]) if len(frames[0].data.points) else None
+    if first is None:  # nothing at all in view: the first frame still defines the origin
+        first = odom.register_points(np.full((1, 3), np.nan), frames[0].stamp)
+    check_finite(first)
+    prev_delta = np.eye(4)  # no velocity yet: the motion model predicts standing still
+    for frame in frames[1:]:
+        res = register(odom, frame)
+        check_finite(res)
+        check_held(res, prev_delta, config)
+        prev_delta = res.delta
+    assert np.isfinite(odom.pose).all()
+
+
+@pytest.mark.xfail(strict=True, reason="known engine bug (reported to registration, 2026-11-25): under 0.5 m range noise "
+                   "7L registers with 14-24 chance inliers of ~150 candidates and reports a >1 m, 3-8 deg wrong motion "
+                   "with a ~5 cm sigma instead of flagging it degenerate")
+def test_heavy_noise_is_finite_and_never_confidently_wrong():
+    """0.5 m range noise: lines cannot be fitted reliably. Every frame is either flagged degenerate (prediction
+    held) or registered within the bounds (a registered frame must not be a confident wrong pose)."""
+    odom = line_odom_core.Odometry(make_config())
+    run = sim.make("street", frames=FRAMES, seed=0, noise_std=0.5)
+    prev = None
+    for frame in run:
+        res = register(odom, frame)
+        check_finite(res)
+        if prev is not None and not res.degenerate:
+            t, r = frame_error(res.delta, np.linalg.inv(prev.pose) @ frame.pose)
+            sigma_t = np.sqrt(np.max(np.diag(res.covariance)[:3]))
+            assert t < max(0.5, 3 * sigma_t), (t, sigma_t, res.stats)
+        prev = frame
+
+
+def test_identical_frames_give_identity_motion():
+    """Standing still without noise: every frame equals the previous one; the motion is the identity (a
+    well-constrained scene, so not degenerate), nothing NaN."""
+    odom = line_odom_core.Odometry(make_config())
+    frames = list(sim.make("street", frames=4, seed=0, speed=0.0))
+    np.testing.assert_array_equal(frames[0].data.points, frames[1].data.points)
+    for k, frame in enumerate(frames):
+        res = register(odom, frame)
+        check_finite(res)
+        if k:
+            assert not res.degenerate, res.stats
+            t, r = frame_error(res.delta, np.eye(4))
+            assert t < 1e-3 and r < 0.01, (t, r)
+    # and literally the same arrays twice with a later stamp
+    res = odom.register_points(frames[-1].data.points, frames[-1].stamp + 0.1, ring=frames[-1].data.ring)
+    check_finite(res)
+    assert frame_error(res.delta, np.eye(4))[0] < 1e-3
+
+
+CORRIDOR = (0.0, 90.0)  # x range of the corridor in the structure-gap scene
+GAP_RANGE = 30.0  # sensor range there: deep inside, neither end of the corridor is visible
+GAP_SPEED = 2.0  # m per frame (20 m/s at 10 Hz)
+
+
+def _structure_gap_scene():
+    """A street with buildings, poles and parked cars, then a closed featureless corridor (floor, walls, ceiling)
+    along x in CORRIDOR, then street again."""
+    rng = np.random.default_rng(7)
+    b = sim.SceneBuilder().add_plane([0, 0, 1], 0.0, "ground")
+    x0, x1 = CORRIDOR
+    for side in (-1, 1):
+        b.add_box([(x0 + x1) / 2, side * 2.15, 2.0], [x1 - x0, 0.3, 4.0], 0.0, "wall")
+        for lo, hi in ((-120.0, x0 - 4.0), (x1 + 4.0, 220.0)):
+            x = lo
+            while x < hi:
+                length = rng.uniform(6, 15)
+                b.add_box([x + length / 2, side * rng.uniform(9, 13), 5.0], [length, rng.uniform(5, 8),
+                                                                           rng.uniform(6, 14)],
+                          rng.uniform(-0.2, 0.2), "building")
+                b.add_cylinder(x + rng.uniform(0, length), side * 6.5, 0.0, 5.0, 0.15, "pole")
+                if rng.random() < 0.6:
+                    b.add_box([x + rng.uniform(0, length), side * 4.5, 0.8], [4.2, 1.8, 1.5], rng.uniform(-0.1, 0.1),
+                              "car")
+                x += length + rng.uniform(1, 4)
+    b.add_box([(x0 + x1) / 2, 0.0, 3.65], [x1 - x0, 4.6, 0.3], 0.0, "ceiling")
+    return b.build(name="structure_gap")
+
+
+def _structure_gap_frames():
+    """Driving straight through the street, the corridor and the street again at GAP_SPEED per frame:
+    (stamp, scan, pose) with an HDL-64E of range GAP_RANGE."""
+    scene = _structure_gap_scene()
+    frames_n = int((CORRIDOR[1] + 40.0 - (CORRIDOR[0] - 40.0)) / GAP_SPEED)
+    traj = sim.straight_drive(frames_n, 10.0, 10.0 * GAP_SPEED, height=1.73, start=(CORRIDOR[0] - 40.0, 0.0))
+    lidar = sim.Lidar.hdl64(max_range=GAP_RANGE)
+    return [(float(t), lidar.scan(scene, T, stamp=float(t)), T) for t, T in traj]
+
+
+def test_recovery_when_structure_returns():
+    """Street, then a corridor deep enough that nothing but its four planes is in range, then street again: in
+    the street every frame registers within bounds; deep in the corridor frames are flagged and held by the
+    motion model (or, if registered, accurate: never confidently wrong); back in the street the error is in
+    bounds again within a few frames of structure returning."""
+    odom = line_odom_core.Odometry(make_config())
+    frames = _structure_gap_frames()
+    results, errors = [], [(0.0, 0.0)]
+    for k, (stamp, scan, T) in enumerate(frames):
+        res = odom.register_points(scan.points, stamp, ring=scan.ring)
+        check_finite(res)
+        results.append(res)
+        if k:
+            errors.append(frame_error(res.delta, np.linalg.inv(frames[k - 1][2]) @ T))
+    x = np.array([T[0, 3] for _, _, T in frames])
+    x0, x1 = CORRIDOR
+    street_before = [k for k in range(1, len(frames)) if x[k] < x0 - GAP_RANGE / 2]
+    deep = [k for k in range(len(frames)) if x0 + GAP_RANGE + 2 < x[k] < x1 - GAP_RANGE - 2]
+    street_after = [k for k in range(len(frames)) if x[k] > x1 + 2 * GAP_SPEED]
+    assert len(street_before) >= 5 and len(deep) >= 5 and len(street_after) >= 5
+    report = [(k, round(x[k]), results[k].stats["solver"], round(errors[k][0], 3)) for k in range(len(frames))]
+    for k in street_before + street_after:
+        assert not results[k].degenerate and errors[k][0] < TRANSLATION_BOUND and errors[k][1] < ROTATION_BOUND, (
+            k, report)
+    for k in range(1, len(frames)):  # never a confident wrong pose anywhere along the drive
+        if not results[k].degenerate:
+            sigma = np.sqrt(np.diag(results[k].covariance)[:3].max())
+            assert errors[k][0] < max(TRANSLATION_BOUND, 3 * sigma), (k, report)
+    flagged = [k for k in deep if results[k].degenerate]
+    assert len(flagged) >= len(deep) - 1, report
+    for k in flagged:
+        check_held(results[k], results[k - 1].delta, odom.config)
+
+
+def _cloud_msg(points, stamp, ring=None):
+    return convert.pointcloud2_from_xyz(points, ring=ring, frame_id="velodyne", stamp=stamp)
+
+
+@pytest.mark.parametrize("kind", ["corridor", "empty"])
+def test_degeneracy_is_reported_in_diagnostics_and_odometry_covariance(kind):
+    """Through the node's processing core: the degenerate flag reaches the DiagnosticArray (WARN, message, value)
+    and the published Odometry carries the inflated covariance; a structured frame afterwards clears it."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    proc = OdometryProcessor.from_parameters("kitti_hdl64", OVERRIDES)
+    frames = list(sim.make(kind, frames=3, seed=0))
+    outs = []
+    for f in frames:
+        pts = f.data.points if len(f.data.points) else np.array([[np.nan, np.nan, np.nan], [1e9, 0, 0]], np.float32)
+        outs.append(proc.process_pointcloud(_cloud_msg(pts, 5.0 + f.stamp)))
+    if kind == "empty":  # no point in range at all: the first frame still anchors the trajectory
+        assert outs[0] is not None
+    status = proc.diagnostics().status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == DiagnosticStatus.WARN, status.message
+    assert "degenerate" in status.message
+    assert values["degenerate"] == "True"
+    last = outs[-1]
+    assert last is not None and last.stats["degenerate"]
+    cov = np.array(last.odometry.pose.covariance).reshape(6, 6)
+    assert np.isfinite(cov).all() and np.diag(cov)[:3].min() >= 0.5 ** 2 * 0.99
+    assert np.isfinite(np.array(last.odometry.twist.covariance)).all()
+    # structure returns: a registered street frame pair clears the flag
+    proc.reset("scene change")
+    for f in list(sim.make("street", frames=3, seed=0)):
+        out = proc.process_pointcloud(_cloud_msg(f.data.points, 10.0 + f.stamp, ring=f.data.ring))
+        assert out is not None
+    assert not out.stats["degenerate"]
+    status = proc.diagnostics().status[0]
+    assert status.level == DiagnosticStatus.OK and {kv.key: kv.value for kv in status.values}["degenerate"] == "False"
