@@ -168,67 +168,80 @@ def goal(row: Row) -> tuple[str, bool | None]:
     return "-", None
 
 
+HEAD = (f"{'data':5} {'seq':7} {'res':5} {'n':>3} | {'line_odom mean/max t [m]':>24} {'mean/max r [deg]':>17} "
+        f"{'ms':>6} {'deg':>3} | {'KISS-ICP mean/max t [m]':>23} {'mean/max r [deg]':>17} {'ms':>6} | "
+        f"{'paper t/r':>14} | goal")
+
+
+def format_row(row: Row) -> str:
+    levels = KITTI_LEVELS if row.dataset == "kitti" else TUM_LEVELS
+    lo_t, lo_tm, lo_r, lo_rm = row.lo
+    kiss = (f"{row.kiss[0]:11.4f}/{row.kiss[1]:<11.4f} {row.kiss[2]:8.3f}/{row.kiss[3]:<8.3f} "
+            f"{row.kiss_ms:6.1f}") if row.kiss else f"{'n/a':>23} {'':>17} {'':>6}"
+    paper = PAPER.get((row.dataset, row.sequence, row.level))
+    paper_text = f"{paper[0]:.4f}/{paper[1]:.3f}" if paper else "-"
+    text, met = goal(row)
+    verdict = {True: "MET", False: "MISSED", None: "?"}[met]
+    return (f"{row.dataset:5} {row.sequence:7} {levels.get(row.level, f'1/{row.level**2}'):5} {row.frames:3d} | "
+            f"{lo_t:12.4f}/{lo_tm:<11.4f} {lo_r:8.3f}/{lo_rm:<8.3f} {row.lo_ms:6.1f} {row.degenerate:3d} | "
+            f"{kiss} | {paper_text:>14} | {text}: {verdict}")
+
+
 def print_table(rows: list[Row]) -> None:
-    head = (f"{'data':5} {'seq':7} {'res':5} {'n':>3} | {'line_odom mean/max t [m]':>24} {'mean/max r [deg]':>17} "
-            f"{'ms':>6} {'deg':>3} | {'KISS-ICP mean/max t [m]':>23} {'mean/max r [deg]':>17} {'ms':>6} | "
-            f"{'paper t/r':>14} | goal")
-    print(head)
-    print("-" * len(head))
+    print(HEAD)
+    print("-" * len(HEAD))
     for row in rows:
-        levels = KITTI_LEVELS if row.dataset == "kitti" else TUM_LEVELS
-        lo_t, lo_tm, lo_r, lo_rm = row.lo
-        kiss = (f"{row.kiss[0]:11.4f}/{row.kiss[1]:<11.4f} {row.kiss[2]:8.3f}/{row.kiss[3]:<8.3f} "
-                f"{row.kiss_ms:6.1f}") if row.kiss else f"{'n/a':>23} {'':>17} {'':>6}"
-        paper = PAPER.get((row.dataset, row.sequence, row.level))
-        paper_text = f"{paper[0]:.4f}/{paper[1]:.3f}" if paper else "-"
-        text, met = goal(row)
-        verdict = {True: "MET", False: "MISSED", None: "?"}[met]
-        print(f"{row.dataset:5} {row.sequence:7} {levels.get(row.level, f'1/{row.level**2}'):5} {row.frames:3d} | "
-              f"{lo_t:12.4f}/{lo_tm:<11.4f} {lo_r:8.3f}/{lo_rm:<8.3f} {row.lo_ms:6.1f} {row.degenerate:3d} | "
-              f"{kiss} | {paper_text:>14} | {text}: {verdict}")
+        print(format_row(row))
 
 
-def run_sim(kiss: bool, overrides: dict, length_m: float) -> None:
-    """Simulated street drive, KITTI devkit segment metric at full resolution and 1/36."""
+def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6)) -> None:
+    """Simulated street drive (line_odom.sim: HDL-64, 10 m/s, 10 Hz, 1 cm range noise), KITTI devkit metric."""
     try:
         from line_odom import sim
     except ImportError as err:
         print(f"simulator not available ({err}); skipping --sim")
         return
-    from line_odom.evaluation import kitti_segment_errors
+    from line_odom.metrics import kitti_errors
 
-    drive = sim.street_drive(length_m=length_m, seed=0) if hasattr(sim, "street_drive") else None
-    if drive is None:
-        print("line_odom.sim has no street_drive(); skipping --sim")
-        return
-    print(f"\nsimulated street drive, {length_m:.0f} m, {len(drive)} scans (KITTI devkit metric, segments 100..800 m)")
-    print(f"{'res':5} | {'line_odom t_err [%]':>20} {'r_err [deg/m]':>14} | {'KISS-ICP t_err [%]':>19} "
-          f"{'r_err [deg/m]':>14} | goal")
-    for level, goal_pct in ((1, 1.0), (6, 3.0)):
+    run = sim.make("street", frames=frames, seed=0, noise_std=0.01)
+    gt = np.array(run.trajectory.poses)
+    length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
+    print(f"\nsimulated street drive: {frames} scans, {length:.0f} m (KITTI devkit metric over 100..800 m segments)")
+    print(f"{'res':5} | {'line_odom t_err [%]':>20} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | "
+          f"{'KISS-ICP t_err [%]':>19} {'r_err [deg/m]':>14} {'RPE t [m]':>10} | goal", flush=True)
+    for level in levels:
+        goal_pct = 1.0 if level == 1 else 3.0
         config = line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides})
         odom = line_odom_core.Odometry(config)
         kiss_odom = kiss_odometry(100.0) if kiss else None
-        est, kiss_est = [], []
-        for i in range(len(drive)):
-            scan = drive.scan(i)
-            result = odom.register_points(scan.xyz, scan.stamp, ring=scan.ring)
-            est.append(result.pose)
+        est, kiss_est, ms = [], [], []
+        for frame in run:
+            scan = frame.data
+            ring = scan.ring.astype(np.int32)
+            t0 = time.perf_counter()
+            est.append(odom.register_points(scan.points, frame.stamp, ring=ring).pose)
+            ms.append((time.perf_counter() - t0) * 1e3)
             if kiss_odom is not None:
-                pts = odom.downsampled_points(scan.xyz, ring=scan.ring) if level > 1 else scan.xyz.astype(float)
+                pts = odom.downsampled_points(scan.points, ring=ring) if level > 1 else scan.points.astype(float)
                 kiss_odom.register_frame(pts, np.zeros(len(pts)))
                 kiss_est.append(kiss_odom.last_pose.copy())
-        t_err, r_err = kitti_segment_errors(np.array(est), drive.poses)
-        k_text = ""
+        scores = kitti_errors(np.array(est), gt)
+        rpe_t = rpe(np.array(est), gt)[0]
+        lo_text = (f"{scores[0]:20.3f} {scores[1]:14.5f}" if scores else f"{'too short':>20} {'':>14}") + \
+            f" {rpe_t:10.4f} {np.mean(ms[1:]):6.0f}"
+        k_text = f"{'n/a':>19} {'':>14} {'':>10}"
         if kiss_odom is not None:
-            kt, kr = kitti_segment_errors(np.array(kiss_est), drive.poses)
-            k_text = f"{kt:19.3f} {kr:14.5f}"
-        print(f"{KITTI_LEVELS[level]:5} | {t_err:20.3f} {r_err:14.5f} | {k_text:>34} | t_err <= {goal_pct}%: "
-              f"{'MET' if t_err <= goal_pct else 'MISSED'}")
+            kscores = kitti_errors(np.array(kiss_est), gt)
+            k_rpe = rpe(np.array(kiss_est), gt)[0]
+            k_text = (f"{kscores[0]:19.3f} {kscores[1]:14.5f}" if kscores else f"{'too short':>19} {'':>14}") + \
+                f" {k_rpe:10.4f}"
+        verdict = "?" if scores is None else ("MET" if scores[0] <= goal_pct else "MISSED")
+        print(f"{KITTI_LEVELS[level]:5} | {lo_text} | {k_text} | t_err <= {goal_pct}%: {verdict}", flush=True)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--only", choices=("kitti", "tum"), help="run one dataset")
+    parser.add_argument("--only", choices=("kitti", "tum", "sim"), help="run one dataset (sim: the simulated drive)")
     parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"], help="KITTI sequences")
     parser.add_argument("--kitti-levels", nargs="+", type=int, default=[1, 6, 8], help="downsampling steps")
     parser.add_argument("--kitti-frames", type=int, default=None, help="frames per sequence (default all)")
@@ -236,10 +249,13 @@ def main(argv=None) -> int:
     parser.add_argument("--tum-frames", type=int, default=300)
     parser.add_argument("--no-kiss", action="store_true", help="line_odom only")
     parser.add_argument("--sim", action="store_true", help="also the simulated street drive")
-    parser.add_argument("--sim-length", type=float, default=1000.0, help="simulated drive length (m)")
+    parser.add_argument("--sim-frames", type=int, default=1000, help="simulated scans (10 m/s, 10 Hz: 1000 = 1 km)")
+    parser.add_argument("--sim-levels", nargs="+", type=int, default=[1, 6], help="downsampling steps of the sim run")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="engine setting overrides (dotted names), e.g. ransac.max_iterations=500")
     args = parser.parse_args(argv)
+    if args.only == "sim":
+        args.sim = True
 
     overrides = {}
     for item in args.set:
@@ -253,18 +269,22 @@ def main(argv=None) -> int:
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; "
           f"KISS-ICP {'on' if kiss else 'off'} (deskew off, voxel = max_range / 100)")
     rows: list[Row] = []
+    if args.only != "sim":
+        print(HEAD, flush=True)
     if args.only in (None, "kitti"):
         for level in args.kitti_levels:
             for seq in args.kitti:
                 rows.append(run_kitti(seq, level, args.kitti_frames, kiss, overrides))
-                print(f"  done kitti {seq} step {level}", file=sys.stderr)
+                print(format_row(rows[-1]), flush=True)
     if args.only in (None, "tum"):
         for level in args.tum_levels:
             rows.append(run_tum(level, args.tum_frames, kiss, overrides))
-    print()
-    print_table(rows)
+            print(format_row(rows[-1]), flush=True)
+    if rows:
+        print("\nsummary (ms: mean per frame, Python call included; deg: frames where the prediction was held)")
+        print_table(rows)
     if args.sim:
-        run_sim(kiss, overrides, args.sim_length)
+        run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels))
     return 0
 
 
