@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -22,18 +23,9 @@ struct ScanBuffer {
   std::vector<double> inv_tau2;       // 1 / tau^2
   std::vector<PointMoments> prefix;   // prefix[k] = moments of points [0, k)
 
-  void clear() {
-    cell.clear();
-    pos.clear();
-    p.clear();
-    x.clear();
-    y.clear();
-    z.clear();
-    tau.clear();
-    inv_tau2.clear();
-    prefix.assign(1, PointMoments());
-  }
-  int size() const { return static_cast<int>(p.size()); }
+  int count = 0;                      // points in this scan line (the arrays keep their largest size)
+
+  int size() const { return count; }
   PointMoments stretch(int a, int b) const {  // points [a, b]
     PointMoments m;
     m.count = prefix[b + 1].count - prefix[a].count;
@@ -78,7 +70,9 @@ class ScanLineFitter {
     candidates_.clear();
     skipped_.clear();
     const int n = buf.size();
-    is_skipped_.assign(n, 0);
+    count_ = n;
+    if (static_cast<int>(is_skipped_.size()) < n) is_skipped_.resize(n);
+    std::fill(is_skipped_.begin(), is_skipped_.begin() + n, 0);
     int run_start = 0;
     for (int j = 1; j <= n; ++j) {
       if (j == n || breaks_between(buf, j - 1, j)) {
@@ -168,11 +162,11 @@ class ScanLineFitter {
     const double inv_len2 = degenerate ? 0.0 : 1.0 / len2;
     const int n = b - a - 1;
     ratio_.resize(n);
-    const double* X = buf.x.data() + a + 1;
-    const double* Y = buf.y.data() + a + 1;
-    const double* Z = buf.z.data() + a + 1;
-    const double* W = buf.inv_tau2.data() + a + 1;
-    double* R = ratio_.data();
+    const double* __restrict X = buf.x.data() + a + 1;
+    const double* __restrict Y = buf.y.data() + a + 1;
+    const double* __restrict Z = buf.z.data() + a + 1;
+    const double* __restrict W = buf.inv_tau2.data() + a + 1;
+    double* __restrict R = ratio_.data();
     if (degenerate) {
       for (int i = 0; i < n; ++i) {
         const double rx = X[i] - ax, ry = Y[i] - ay, rz = Z[i] - az;
@@ -257,17 +251,45 @@ class ScanLineFitter {
 
   int next_inlier(int k, int step) const {
     k += step;
-    while (k >= 0 && k < static_cast<int>(is_skipped_.size()) && is_skipped_[k]) k += step;
+    while (k >= 0 && k < count_ && is_skipped_[k]) k += step;
     return k;
   }
 
   // Trims end points beyond the threshold, then applies the support / rms / length tests.
   bool acceptable(const ScanBuffer& buf, CandidateLine& c, int min_points) const {
     if (c.moments.count < min_points) return false;
-    for (int round = 0; round < 3; ++round) {
+    // Ends: points of the neighbouring surface near a corner stay within the split threshold but pull the fit
+    // towards them. The middle half of the line is clean, so its least-squares line and rms judge the ends:
+    // end points farther than trim_sigmas x that rms (floor: half of max_rms) or than the split threshold are
+    // trimmed, then the line is refitted. Lines under 12 points judge each end by the line through the others.
+    for (int round = 0; round < 2; ++round) {
+      LineLeastSquares judge = c.fit;
+      double limit_rms = std::numeric_limits<double>::infinity();  // short lines: the split threshold only
+      if (c.moments.count >= 12) {
+        const int a = c.first + (c.last - c.first) / 4, b = c.last - (c.last - c.first) / 4;
+        PointMoments core = buf.stretch(a, b);
+        for (int i = c.skipped_begin; i < c.skipped_end; ++i)
+          if (skipped_[i] >= a && skipped_[i] <= b) remove_point(&core, buf.p[skipped_[i]]);
+        judge = fit_line(core, c.fit.direction);
+        // a fit to n points absorbs 4 of their 2n residual components: unbiased rms
+        limit_rms = judge.rms * std::sqrt(core.count / (core.count - 2.0));
+      }
+      const bool short_line = c.moments.count < 12;
+      auto off = [&](int k) {
+        const double floor = 0.5 * cfg_.max_rms * cfg_.threshold_scale(buf.p[k].norm());
+        if (short_line && c.moments.count >= 5) {  // judged by the line through the other points
+          PointMoments rest = c.moments;
+          remove_point(&rest, buf.p[k]);
+          const LineLeastSquares f = fit_line(rest, c.fit.direction);
+          const double rms = f.rms * std::sqrt(rest.count / (rest.count - 2.0));
+          return excess2(f, buf, k) > 1.0 || residual(f, buf.p[k]) > std::max(cfg_.trim_sigmas * rms, floor);
+        }
+        if (excess2(judge, buf, k) > 1.0) return true;
+        return residual(judge, buf.p[k]) > std::max(cfg_.trim_sigmas * limit_rms, floor);
+      };
       int lo = c.first, hi = c.last;
-      while (hi > lo && excess2(c.fit, buf, lo) > 1.0) lo = next_inlier(lo, 1);
-      while (hi > lo && excess2(c.fit, buf, hi) > 1.0) hi = next_inlier(hi, -1);
+      while (hi > lo && off(lo)) lo = next_inlier(lo, 1);
+      while (hi > lo && off(hi)) hi = next_inlier(hi, -1);
       if (lo == c.first && hi == c.last) break;
       if (hi <= lo) return false;
       c.first = lo;
@@ -344,28 +366,64 @@ class ScanLineFitter {
   std::vector<std::uint8_t> is_skipped_;
   std::vector<double> ratio_;
   bool fitted_ = false;
+  int count_ = 0;  // points of the current scan line
 };
 
-void fill_buffer(const RangeImage& img, const LineFitConfig& cfg, bool horizontal, int index, ScanBuffer* buf) {
-  buf->clear();
+// Per-cell split thresholds, computed once for both passes.
+struct CellThresholds {
+  std::vector<double> tau, inv_tau2;
+};
+
+CellThresholds cell_thresholds(const RangeImage& img, const LineFitConfig& cfg) {
+  CellThresholds t;
+  const size_t n = img.points.size();
+  t.tau.resize(n);
+  t.inv_tau2.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    const double tau = img.valid[i] ? cfg.split_distance * cfg.threshold_scale(img.points[i].norm()) : 1.0;
+    t.tau[i] = tau;
+    t.inv_tau2[i] = 1.0 / (tau * tau);
+  }
+  return t;
+}
+
+void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizontal, int index, ScanBuffer* buf) {
   const int n = horizontal ? img.cols : img.rows;
-  for (int k = 0; k < n; ++k) {
-    const int cell = horizontal ? index * img.cols + k : k * img.cols + index;
+  if (static_cast<int>(buf->cell.size()) < n) {  // grow once; sizes stay at the maximum, `count` is the length
+    buf->cell.resize(n);
+    buf->pos.resize(n);
+    buf->p.resize(n);
+    buf->x.resize(n);
+    buf->y.resize(n);
+    buf->z.resize(n);
+    buf->tau.resize(n);
+    buf->inv_tau2.resize(n);
+    buf->prefix.resize(n + 1);
+  }
+  buf->prefix[0] = PointMoments();
+  const int cell0 = horizontal ? index * img.cols : index;
+  const int step = horizontal ? 1 : img.cols;
+  int m = 0;
+  for (int k = 0, cell = cell0; k < n; ++k, cell += step) {
     if (!img.valid[cell]) continue;
     const Vec3& p = img.points[cell];
-    buf->cell.push_back(cell);
-    buf->pos.push_back(k);
-    buf->p.push_back(p);
-    buf->x.push_back(p.x());
-    buf->y.push_back(p.y());
-    buf->z.push_back(p.z());
-    const double tau = cfg.split_distance * cfg.threshold_scale(p.norm());
-    buf->tau.push_back(tau);
-    buf->inv_tau2.push_back(1.0 / (tau * tau));
-    PointMoments m = buf->prefix.back();
-    m.add(p);
-    buf->prefix.push_back(m);
+    buf->cell[m] = cell;
+    buf->pos[m] = k;
+    buf->p[m] = p;
+    buf->x[m] = p.x();
+    buf->y[m] = p.y();
+    buf->z[m] = p.z();
+    buf->tau[m] = th.tau[cell];
+    buf->inv_tau2[m] = th.inv_tau2[cell];
+    PointMoments& pm = buf->prefix[m + 1];
+    const PointMoments& prev = buf->prefix[m];
+    pm.count = prev.count + 1;
+    pm.sum = prev.sum + p;
+    pm.outer = prev.outer;
+    pm.outer.noalias() += p * p.transpose();
+    ++m;
   }
+  buf->count = m;
 }
 
 }  // namespace
@@ -384,6 +442,7 @@ void LineFitConfig::validate() const {
   if (max_gap < 0) fail("max_gap", "expected >= 0");
   if (!(min_incidence_deg >= 0.0 && min_incidence_deg < 90.0)) fail("min_incidence_deg", "expected in [0, 90)");
   if (max_outliers < 0) fail("max_outliers", "expected >= 0");
+  if (!(trim_sigmas > 0.0)) fail("trim_sigmas", "expected > 0");
 }
 
 Mat3 PointMoments::covariance() const {
@@ -444,13 +503,13 @@ ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
   out.v_label.assign(cells, -1);
   ScanLineFitter fitter(config);
   ScanBuffer buf;
-  buf.p.reserve(std::max(image.rows, image.cols));
+  const CellThresholds thresholds = cell_thresholds(image, config);
   for (int r = 0; r < image.rows; ++r) {
-    fill_buffer(image, config, true, r, &buf);
+    fill_buffer(image, thresholds, true, r, &buf);
     fitter.fit(buf, config.min_points_h, r, &out.h_lines, &out.h_label);
   }
   for (int c = 0; c < image.cols; ++c) {
-    fill_buffer(image, config, false, c, &buf);
+    fill_buffer(image, thresholds, false, c, &buf);
     fitter.fit(buf, config.min_points_v, c, &out.v_lines, &out.v_label);
   }
   return out;

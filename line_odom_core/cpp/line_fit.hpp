@@ -3,14 +3,15 @@
 // The paper runs RANSAC per scan line (3 s per KITTI frame). Here each scan line is fitted by split-and-merge,
 // which is deterministic, O(n log n) per scan line and keeps the scan order (a line never takes points from
 // unrelated parts of the scan line): (1) runs are cut at holes longer than max_gap and at depth jumps (the
-// step between neighbours points along the viewing ray: incidence below min_incidence_deg); (2) each run is
-// split recursively at the point farthest from the chord while that distance exceeds the split threshold
-// (corners, curved surfaces); (3) neighbouring pieces are merged while the least-squares line of their union
-// keeps every point within the threshold, skipping up to max_outliers stray points between them;
+// step between neighbouring points runs along the viewing ray: incidence below min_incidence_deg); (2) each
+// run is split recursively at the point farthest from the chord while that distance exceeds the split
+// threshold (corners, curved surfaces); (3) neighbouring pieces are merged while the least-squares line of
+// their union keeps every point within the threshold, skipping up to max_outliers stray points between them;
 // (4) every line is refitted by least squares (centroid + principal direction), a point shared by two lines
-// at a corner goes to the one it fits better, end points beyond the threshold are trimmed; (5) lines with too
-// few points, too short or with too large an rms are dropped. Thresholds grow with range r by
-// (1 + threshold_per_m r + threshold_per_m2 r^2) (LiDAR: ~linear; depth cameras: ~quadratic).
+// at a corner goes to the one it fits better, end points farther than the threshold or than trim_sigmas x rms
+// from the line of the middle half are trimmed; (5) lines with too few points, too short or with too large
+// an rms are dropped. Thresholds grow with range r by (1 + threshold_per_m r + threshold_per_m2 r^2) (LiDAR:
+// ~linear; depth cameras: ~quadratic).
 #pragma once
 
 #include <cstdint>
@@ -31,6 +32,7 @@ struct LineFitConfig {
   int max_gap = 2;                  // lines.max_gap: missing cells bridged inside one line
   double min_incidence_deg = 4.0;   // lines.min_incidence_deg: steps closer than this to the ray are jumps
   int max_outliers = 2;             // lines.max_outliers: stray points skipped between two collinear pieces
+  double trim_sigmas = 3.0;         // lines.trim_sigmas: end points beyond this x rms of the line's middle half go
 
   double threshold_scale(double range) const {
     return 1.0 + threshold_per_m * range + threshold_per_m2 * range * range;

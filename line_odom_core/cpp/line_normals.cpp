@@ -43,24 +43,32 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
     const int b = lists.offset[i], e = lists.offset[i + 1];
     if (e == b) continue;
     Vec3 mean = Vec3::Zero();
-    for (int k = b; k < e; ++k) mean += crossings[lists.items[k]].normal;
+    double total = 0.0;
+    for (int k = b; k < e; ++k) {
+      const LineCrossing& x = crossings[lists.items[k]];
+      mean += x.weight * x.normal;
+      total += x.weight;
+    }
     if (mean.norm() < 1e-9) continue;
     mean.normalize();
     int agree = 0;
+    double agree_weight = 0.0;
     for (double cos_limit : {cos_wide, cos_dev}) {
       Vec3 next = Vec3::Zero();
       agree = 0;
+      agree_weight = 0.0;
       for (int k = b; k < e; ++k) {
-        const Vec3& n = crossings[lists.items[k]].normal;
-        if (n.dot(mean) >= cos_limit) {
-          next += n;
+        const LineCrossing& x = crossings[lists.items[k]];
+        if (x.normal.dot(mean) >= cos_limit) {
+          next += x.weight * x.normal;
+          agree_weight += x.weight;
           ++agree;
         }
       }
       if (agree == 0 || next.norm() < 1e-9) break;
       mean = next.normalized();
     }
-    if (agree < cfg.min_crossings || agree < cfg.min_agreement * (e - b)) continue;
+    if (agree < cfg.min_crossings || agree_weight < cfg.min_agreement * total) continue;
     f.normal = mean;
     f.normal_support = agree;
   }
@@ -105,6 +113,7 @@ void NormalConfig::validate() const {
   if (!(max_cluster_angle_deg > 0.0 && max_cluster_angle_deg <= 90.0))
     fail("max_cluster_angle_deg", "expected in (0, 90]");
   if (!(min_cluster_fraction >= 0.0 && min_cluster_fraction <= 1.0)) fail("min_cluster_fraction", "expected in [0, 1]");
+  if (!(end_crossing_weight >= 0.0 && end_crossing_weight <= 1.0)) fail("end_crossing_weight", "expected in [0, 1]");
 }
 
 std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLines& lines,
@@ -115,12 +124,18 @@ std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLine
   for (int cell = 0; cell < cells; ++cell) {
     const int h = lines.h_label[cell], v = lines.v_label[cell];
     if (h < 0 || v < 0) continue;
+    // A true crossing has points of both lines on both sides; a shared end point may be a corner where a line
+    // of one surface meets a line of another (their cross product is neither's normal): it weighs less.
+    const int r = cell / image.cols, c = cell % image.cols;
+    const LineFeature& lh = lines.h_lines[h];
+    const LineFeature& lv = lines.v_lines[v];
+    const bool at_end = c == lh.first || c == lh.last || r == lv.first || r == lv.last;
     Vec3 n = lines.h_lines[h].line.d.cross(lines.v_lines[v].line.d);
     const double s = n.norm();
     if (s < sin_min) continue;
     n /= s;
     if (n.dot(image.points[cell]) > 0.0) n = -n;
-    out.push_back({h, v, cell, n});
+    out.push_back({h, v, cell, n, at_end ? config.end_crossing_weight : 1.0});
   }
   return out;
 }

@@ -1,8 +1,9 @@
 // Surface normals of lines from H/V line crossings in the same scan, and their clustering into 3 directions
 // (paper §6.2 "Line Fitting" and §6.3 "Candidate Selection").
 //
-// An H-line and a V-line that hold the same range-image cell cross there; both lie on the surface, so the
-// surface normal at the crossing is the cross product of their directions (oriented towards the sensor).
+// An H-line and a V-line that hold the same range-image cell cross there; both lie
+// on the surface, so the surface normal at the crossing is the cross product of their directions (oriented
+// towards the sensor). Crossings at a line's end weigh less: that is where lines of two surfaces meet at corners.
 // Each line takes the robust mean of its crossings' normals (mean, then re-mean over the crossings within
 // max_deviation_deg, twice). Clustering is dominant-direction voting on the sphere with sign folding: the
 // direction with the most line normals within vote_angle_deg, then the most voted direction at least
@@ -28,6 +29,7 @@ struct NormalConfig {
   double min_separation_deg = 45.0;      // normals.min_separation_deg: between cluster directions
   double max_cluster_angle_deg = 90.0;   // normals.max_cluster_angle_deg: farther normals stay unclustered
   double min_cluster_fraction = 0.02;    // normals.min_cluster_fraction: votes a direction needs (of all normals)
+  double end_crossing_weight = 0.25;     // normals.end_crossing_weight: weight of crossings at a line's end
 
   void validate() const;  // throws std::invalid_argument naming the field
 };
@@ -38,9 +40,10 @@ struct LineCrossing {
   std::int32_t v = -1;
   std::int32_t cell = -1;
   Vec3 normal = Vec3::Zero();
+  double weight = 1.0;  // end_crossing_weight at a line's end, else 1
 };
 
-// Finds the crossings (cells labelled by both an H- and a V-line, crossing angle large enough).
+// Finds the crossings (cells held by both an H- and a V-line, crossing angle large enough).
 std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLines& lines,
                                          const NormalConfig& config);
 

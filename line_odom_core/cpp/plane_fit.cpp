@@ -161,8 +161,48 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
     if (r < 0 && v >= 0) r = region[nh + v];
     if (r >= 0) region_moments[r].add(image.points[c]);
   }
+  // Regions on one plane that the crossing graph did not connect (split by an occluder, a gap or the sensor's
+  // blind spot) are merged when their planes agree and the union still fits.
+  std::vector<int> parent(nr);
+  std::iota(parent.begin(), parent.end(), 0);
+  {
+    std::vector<int> big;
+    for (int r = 0; r < nr; ++r)
+      if (region_moments[r].count >= 3 && regions[r].lines.size() >= 2) big.push_back(r);
+    std::stable_sort(big.begin(), big.end(),
+                     [&](int a, int b) { return region_moments[a].count > region_moments[b].count; });
+    std::vector<PlaneEstimate> est(nr);
+    for (int r : big) est[r] = pca_plane(region_moments[r]);
+    auto within = [&](const PlaneEstimate& p, const Vec3& x) {
+      return std::abs(p.n.dot(x) + p.delta) <= config.max_distance * line_config.threshold_scale(x.norm());
+    };
+    for (size_t i = 0; i < big.size(); ++i) {
+      const int a = big[i];
+      if (parent[a] != a) continue;
+      for (size_t j = i + 1; j < big.size(); ++j) {
+        const int b = big[j];
+        if (parent[b] != b) continue;
+        const PlaneEstimate& pa = est[a];
+        const PlaneEstimate& pb = est[b];
+        if (std::abs(pa.n.dot(pb.n)) < cos_normal) continue;
+        if (!within(pa, region_moments[b].mean()) || !within(pb, region_moments[a].mean())) continue;
+        PointMoments u = region_moments[a];
+        u.add(region_moments[b]);
+        const PlaneEstimate pu = pca_plane(u);
+        if (!(std::sqrt(pu.lambda_min) <= config.max_rms)) continue;
+        region_moments[a] = u;
+        est[a] = pu;
+        regions[a].lines.insert(regions[a].lines.end(), regions[b].lines.begin(), regions[b].lines.end());
+        parent[b] = a;
+      }
+    }
+    for (int i = 0; i < nl; ++i)
+      if (region[i] >= 0) region[i] = parent[region[i]];
+  }
+
   std::vector<std::pair<PlaneFeature, int>> accepted;
   for (int r = 0; r < nr; ++r) {
+    if (parent[r] != r) continue;
     const PointMoments& m = region_moments[r];
     if (static_cast<int>(regions[r].lines.size()) < config.min_lines || m.count < config.min_points) continue;
     const PlaneEstimate p = pca_plane(m);
