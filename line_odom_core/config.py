@@ -76,6 +76,8 @@ _ENTRIES: list[ConfigEntry] = [
                 "stay unclustered (deg)", 0.0, 90.0),
     ConfigEntry("normals.min_cluster_fraction", float, 0.02, "votes a direction needs, as a fraction of all "
                 "normals", 0.0, 1.0),
+    ConfigEntry("normals.end_crossing_weight", float, 0.25, "weight of an H/V crossing at a line's end (corners "
+                "join lines of two surfaces there)", 0.0, 1.0),
     # --- plane fitting, paper §6.2 ---
     ConfigEntry("planes.enabled", bool, True, "fit planes (needed by the 3L1P and 1L2P solvers)", None, None),
     ConfigEntry("planes.max_distance", float, 0.10, "line end points within this of the plane join it (m at "
