@@ -15,6 +15,7 @@ set -euo pipefail
 
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$ROOT"
+SECONDS=0
 VENV="$ROOT/.venv"
 PY="$VENV/bin/python"
 STAMPS="$VENV/.setup"
@@ -145,4 +146,4 @@ fi
 
 (cd / && "$PY" -c 'import line_odom, line_odom_core, rclpy, tf2_msgs.msg') \
     || die "final check failed: .venv/bin/python cannot import line_odom, line_odom_core, rclpy and tf2_msgs"
-say "ready: $PY"
+say "ready: $PY (${SECONDS} s)"
