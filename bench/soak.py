@@ -36,7 +36,7 @@ FAST_SETTINGS = {
     "preset": "vlp16",
     "registration.passes": 1,
     "candidates.max_pairs_per_line": 2,
-    "ransac.max_iterations": 100,
+    "ransac.max_iterations": 50,
     "publish_tf": True,
     "diagnostics.period": 1.0,
 }
@@ -62,7 +62,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=5000)
     ap.add_argument("--rate", type=float, default=10.0, help="sensor rate (Hz)")
-    ap.add_argument("--columns", type=int, default=900, help="VLP-16 azimuth steps per revolution")
+    ap.add_argument("--columns", type=int, default=600, help="VLP-16 azimuth steps per revolution")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--domain", type=int, default=90 + os.getpid() % 10, help="ROS_DOMAIN_ID")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
