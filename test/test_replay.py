@@ -89,6 +89,15 @@ def test_replay_is_deterministic_and_writes_an_output_bag(tmp_path, tum_bags):
         est = evaluation.read_trajectory(tmp_path / "run0" / "trajectory_tum.txt")
         np.testing.assert_allclose([last.pose.pose.position.x, last.pose.pose.position.y, last.pose.pose.position.z],
                                    est.poses[-1, :3, 3], atol=1e-6)
+    # evo reads the output bag (`evo_ape bag odom_bag /ground_truth /odom`)
+    from evo.tools import file_interface
+    from rosbags.rosbag2 import Reader
+
+    with Reader(tmp_path / "odom_bag") as evo_reader:
+        odom = file_interface.read_bag_trajectory(evo_reader, "/odom")
+        gt = file_interface.read_bag_trajectory(evo_reader, bags.GROUND_TRUTH_TOPIC)
+    assert odom.num_poses == 12 and gt.num_poses == 60
+    np.testing.assert_allclose(odom.positions_xyz, est.poses[:, :3, 3], atol=1e-6)
 
 
 def test_replay_without_ground_truth_omits_the_gt_keys(tmp_path, capsys):
