@@ -44,11 +44,14 @@ def estimate_motion(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, planes_a: np
     absent); weights (N,) >= 0; clusters (N,) int in {-1,0,1,2}; init (4,4) (None = identity).
     options: solver ("auto", "7L", "3L1P", "1L2P"), max_iterations, min_iterations, confidence, inlier_threshold,
     plane_angle_threshold_deg, plane_distance_threshold, refine_iterations, huber_delta, seed, min_inliers,
-    degeneracy_threshold, local_optimisation, pretest, solve_7l_method, solve_7l_max_iterations.
+    degeneracy_threshold, local_optimisation, pretest, min_inlier_contrast, solve_7l_method,
+    solve_7l_max_iterations.
     Returns (T_ab (4,4), stats); T_ab = init when stats["success"] is False. stats keys: success, inliers,
     inlier_weight, plane_inliers, iterations, models, solver_counts (new-best hypotheses per solver),
     solver_iterations (samples per solver), best_solver (str | None), covariance (6,6; x y z rx ry rz; left
-    perturbation), residual_rms, degenerate, condition, dropped_line_pairs, dropped_plane_pairs,
+    perturbation), residual_rms, degenerate, condition, perturbed_inlier_weight (chance support of the estimate
+    pushed 20 thresholds along 8 diagonals; success needs inlier_weight >= min_inlier_contrast * it
+    + 3 sqrt(it)), dropped_line_pairs, dropped_plane_pairs,
     line_inlier_mask (N,), plane_inlier_mask (M,)."""
 
 def _ransac_fit_line_2d(points: npt.ArrayLike, threshold: float, *, weights: npt.ArrayLike | None = None,

@@ -258,6 +258,23 @@ def test_same_seed_same_answer():
     assert any(n != first[1]["iterations"] for n in other)
 
 
+def test_hopeless_search_is_not_reported_as_success():
+    # 80 % outliers leave 7L (P(all-inlier sample) = 0.2^7) no chance in 300 samples: whatever pose wins must
+    # not pass as a success; 1L2P on the same data succeeds
+    T_true, args, _ = make_scene(21, n_true=300, outlier_ratio=0.8)
+    init = guess_near(T_true, 21)
+    T, stats = call(args, init=init, options={**OPTIONS, "solver": "7L", "max_iterations": 300})
+    dt, dr = pose_error(T, T_true)
+    assert not stats["success"] or (dt < 0.02 and dr < 0.2)
+    assert stats["best_solver"] == "7L" and stats["inliers"] > 0
+    chance = stats["perturbed_inlier_weight"]
+    assert stats["inlier_weight"] < 3.0 * chance + 3.0 * np.sqrt(chance)
+    T, stats = call(args, init=init, options={**OPTIONS, "solver": "1L2P"})
+    assert stats["success"] and stats["inlier_weight"] > 10 * stats["perturbed_inlier_weight"]
+    dt, dr = pose_error(T, T_true)
+    assert dt < 0.02 and dr < 0.2
+
+
 def test_covariance_shrinks_with_more_data_and_scales_with_noise():
     sd = {}
     for n_true, noise in ((100, 0.01), (800, 0.01), (800, 0.003)):
@@ -324,6 +341,7 @@ def test_every_option_is_accepted():
                "inlier_threshold": 0.03, "plane_angle_threshold_deg": 2.0, "plane_distance_threshold": 0.05,
                "refine_iterations": 5, "huber_delta": 0.015, "seed": 2**64 - 1, "min_inliers": 20,
                "degeneracy_threshold": 1e-4, "local_optimisation": False, "pretest": False,
+               "min_inlier_contrast": 3.0,
                "solve_7l_method": "alternating_projection", "solve_7l_max_iterations": 2000}
     T, stats = call(args, init=guess_near(T_true, 17), options=options)
     assert stats["success"] and stats["iterations"] <= 500

@@ -348,6 +348,8 @@ line_odom::MotionOptions motion_options(const py::dict& d) {
       o.local_optimisation = option_bool(key, v);
     } else if (key == "pretest") {
       o.pretest = option_bool(key, v);
+    } else if (key == "min_inlier_contrast") {
+      o.min_inlier_contrast = option_float(key, v, 0.0, 1e9, false, "a number >= 0");
     } else if (key == "solve_7l_method") {
       const char* expected = "'gauss_newton' or 'alternating_projection'";
       const std::string s = option_str(key, v, expected);
@@ -360,7 +362,8 @@ line_odom::MotionOptions motion_options(const py::dict& d) {
       throw py::value_error("estimate_motion: unknown option '" + key +
                             "' (known: solver, max_iterations, min_iterations, confidence, inlier_threshold, "
                             "plane_angle_threshold_deg, plane_distance_threshold, refine_iterations, huber_delta, "
-                            "seed, min_inliers, degeneracy_threshold, local_optimisation, pretest, solve_7l_method, "
+                            "seed, min_inliers, degeneracy_threshold, local_optimisation, pretest, min_inlier_contrast, "
+                            "solve_7l_method, "
                             "solve_7l_max_iterations)");
     }
   }
@@ -481,6 +484,7 @@ py::tuple estimate_motion(py::handle lines_a, py::handle lines_b, py::handle pla
   s["residual_rms"] = stats.residual_rms;
   s["degenerate"] = stats.degenerate;
   s["condition"] = stats.condition;
+  s["perturbed_inlier_weight"] = stats.perturbed_inlier_weight;
   s["dropped_line_pairs"] = stats.dropped_line_pairs;
   s["dropped_plane_pairs"] = stats.dropped_plane_pairs;
   s["line_inlier_mask"] = mask_array(stats.line_inlier_mask);

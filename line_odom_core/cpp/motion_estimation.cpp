@@ -316,6 +316,30 @@ class MotionHybridEstimator {
   double th2_ = 0.0, plane_cos_ = 1.0;
 };
 
+// Mean line inlier weight of T pushed by 20 inlier thresholds along the 8 diagonals (+-1, +-1, +-1)/sqrt(3) and
+// turned about a second diagonal by the angle that moves the inlier lines' mean distance from the origin as
+// far: the support a wrong pose gets by chance. Diagonals, not axes: pairs on a plane keep intersecting under
+// any shift within that plane, and scenes tend to have planes through the axes.
+double perturbed_inlier_weight(const Correspondences& w, const RigidTransform& T, const std::vector<std::uint8_t>& inlier,
+                               double threshold) {
+  double r2 = 0.0;
+  int n = 0;
+  for (size_t j = 0; j < w.lines_a.size(); ++j)
+    if (inlier[j]) r2 += w.lines_a[j].closest_point_to_origin().squaredNorm(), ++n;
+  const double push = 20.0 * threshold;
+  const double turn = push / std::max(1.0, n > 0 ? std::sqrt(r2 / n) : 1.0);
+  double total = 0.0;
+  for (int k = 0; k < 8; ++k) {
+    const Vec3 s((k & 1) ? 1.0 : -1.0, (k & 2) ? 1.0 : -1.0, (k & 4) ? 1.0 : -1.0);
+    Vec6 xi;
+    xi << push * s / std::sqrt(3.0), turn * Vec3(s.y(), -s.z(), s.x()) / std::sqrt(3.0);
+    const RigidTransform P = se3_exp(xi) * T;
+    for (size_t j = 0; j < w.lines_a.size(); ++j)
+      if (line_pair_is_inlier(w.lines_a[j], w.lines_b[j].moved(P), threshold, kMinLineSine)) total += w.weights[j];
+  }
+  return total / 8.0;
+}
+
 RefineOptions refine_options_from(const MotionOptions& o) {
   RefineOptions r;
   r.iterations = o.refine_iterations;
@@ -375,10 +399,13 @@ bool estimate_motion(const Correspondences& data, const RigidTransform& init, co
   if (refined_ok) stats.covariance = refined.covariance;
 
   const Correspondences& w = prepared.work;
-  stats.line_inlier_mask.assign(std::min(data.lines_a.size(), data.lines_b.size()), 0);
+  std::vector<std::uint8_t> work_inlier(w.lines_a.size(), 0);
   for (size_t j = 0; j < w.lines_a.size(); ++j)
-    stats.line_inlier_mask[prepared.line_origin[j]] = line_pair_is_inlier(
-        w.lines_a[j], w.lines_b[j].moved(final_T), options.inlier_threshold, kMinLineSine) && w.weights[j] > 0.0;
+    work_inlier[j] = w.weights[j] > 0.0 && line_pair_is_inlier(w.lines_a[j], w.lines_b[j].moved(final_T),
+                                                                options.inlier_threshold, kMinLineSine);
+  stats.perturbed_inlier_weight = perturbed_inlier_weight(w, final_T, work_inlier, options.inlier_threshold);
+  stats.line_inlier_mask.assign(std::min(data.lines_a.size(), data.lines_b.size()), 0);
+  for (size_t j = 0; j < w.lines_a.size(); ++j) stats.line_inlier_mask[prepared.line_origin[j]] = work_inlier[j];
   stats.plane_inlier_mask.assign(std::min(data.planes_a.size(), data.planes_b.size()), 0);
   for (size_t j = 0; j < w.planes_a.size(); ++j)
     stats.plane_inlier_mask[prepared.plane_origin[j]] =
@@ -386,6 +413,8 @@ bool estimate_motion(const Correspondences& data, const RigidTransform& init, co
                              refine_options.plane_distance_threshold);
 
   stats.success = refined_ok && !refined.degenerate && refined.line_inliers >= options.min_inliers &&
+                  refined.line_inlier_weight >= options.min_inlier_contrast * stats.perturbed_inlier_weight +
+                                                    3.0 * std::sqrt(stats.perturbed_inlier_weight) &&
                   final_T.is_finite();
   if (stats.success && T_ab) *T_ab = final_T;
   const bool success = stats.success;

@@ -39,6 +39,8 @@ struct MotionOptions {
   double degeneracy_threshold = 1e-3;  // degenerate when the scaled J^T W J is worse conditioned than this
   bool local_optimisation = true;     // refine every new best hypothesis on its inliers (LO-RANSAC)
   bool pretest = true;                // score a random subset first and drop clearly worse hypotheses
+  double min_inlier_contrast = 3.0;   // success needs inlier weight >= this * chance + 3 sqrt(chance), chance =
+                                      // mean inlier weight of the estimate pushed 20 thresholds 8 generic ways
   Solve7LMethod solve_7l_method = Solve7LMethod::kGaussNewton;
   int solve_7l_max_iterations = 0;    // 0: 30 for Gauss-Newton, 30000 for alternating projection
 };
@@ -57,6 +59,7 @@ struct MotionStats {
   std::array<int, 3> solver_iterations{};  // samples drawn per solver: 7L, 3L1P, 1L2P
   int models = 0;                      // hypotheses scored
   double condition = 0.0;              // smallest / largest eigenvalue of the scaled J^T W J
+  double perturbed_inlier_weight = 0.0;  // mean inlier weight of the 8 pushed estimates (chance agreement)
   int dropped_line_pairs = 0;          // non-finite or zero-direction lines, negative weights
   int dropped_plane_pairs = 0;         // non-finite or zero-normal planes
   std::vector<std::uint8_t> line_inlier_mask;   // per input line pair under the best motion found (1 = inlier)
