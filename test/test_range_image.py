@@ -47,7 +47,7 @@ def test_kitti_organizes_into_64_rings_keeping_most_points(seq):
     az = np.arctan2(xyz[r, c, 1], xyz[r, c, 0])
     expected = (np.pi - az) / (2 * np.pi) * 2048
     err = np.abs((c + 0.5 - expected + 1024) % 2048 - 1024)
-    assert np.max(err) <= 1.5 + 1e-9
+    assert np.max(err) <= 1.5 + 1e-3  # a bin and its free neighbour; the engine's azimuth is good to 2e-6 rad
 
 
 def test_kitti_elevation_model_when_order_is_lost():

@@ -161,7 +161,7 @@ class ScanLineFitter {
     const bool degenerate = !(len2 > 1e-24);
     const double inv_len2 = degenerate ? 0.0 : 1.0 / len2;
     const int n = b - a - 1;
-    ratio_.resize(n);
+    if (static_cast<int>(ratio_.size()) < n) ratio_.resize(n);
     const double* __restrict X = buf.x.data() + a + 1;
     const double* __restrict Y = buf.y.data() + a + 1;
     const double* __restrict Z = buf.z.data() + a + 1;
