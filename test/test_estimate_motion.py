@@ -347,3 +347,27 @@ def test_every_option_is_accepted():
     assert stats["success"] and stats["iterations"] <= 500
     dt, dr = pose_error(T, T_true)
     assert dt < 0.02 and dr < 0.2
+
+
+def test_releases_the_gil():
+    import threading
+    import time
+
+    T_true, args, _ = make_scene(18, n_true=1500)
+    options = {**OPTIONS, "solver": "7L", "confidence": 1.0, "max_iterations": 1500, "min_iterations": 1500}
+    window = {}
+
+    def work():
+        window["enter"] = time.perf_counter()
+        call(args, options=options)
+        window["exit"] = time.perf_counter()
+
+    worker = threading.Thread(target=work)
+    samples = []
+    worker.start()
+    while worker.is_alive():
+        samples.append(time.perf_counter())
+    worker.join()
+    inside = [s for s in samples if window["enter"] + 0.005 < s < window["exit"] - 0.005]
+    assert window["exit"] - window["enter"] > 0.02
+    assert len(inside) > 100  # the main thread ran Python while estimate_motion worked
