@@ -371,3 +371,18 @@ def test_releases_the_gil():
     inside = [s for s in samples if window["enter"] + 0.005 < s < window["exit"] - 0.005]
     assert window["exit"] - window["enter"] > 0.02
     assert len(inside) > 100  # the main thread ran Python while estimate_motion worked
+
+
+def test_covariance_matches_the_scatter_of_the_estimates():
+    from scipy.spatial.transform import Rotation
+
+    normalized = []
+    for seed in range(20):
+        T_true, args, _ = make_scene(100 + seed, n_true=300)
+        T, stats = call(args, init=guess_near(T_true, seed), options={**OPTIONS, "seed": seed})
+        assert stats["success"]
+        E = T @ np.linalg.inv(T_true)  # T = exp(xi) T_true
+        xi = np.r_[E[:3, 3], Rotation.from_matrix(E[:3, :3]).as_rotvec()]
+        normalized.append(xi @ np.linalg.solve(stats["covariance"], xi))
+    # chi-square with 6 degrees of freedom on average: within a factor 3 either way (sd within ~1.7x)
+    assert 6 / 3 < np.mean(normalized) < 6 * 3, np.mean(normalized)
