@@ -253,7 +253,9 @@ class LineOdomNode(Node):
             try:
                 if depth:
                     if not self.processor.has_camera_info:
-                        # hold the image until its CameraInfo arrives (unless a newer image replaces it)
+                        # hold a valid image until its CameraInfo arrives (unless a newer image replaces it)
+                        if not self.processor.check_depth_image(msg):
+                            continue
                         if not self._slot.put_back(item):
                             self.processor.note_dropped()
                         self._camera_info_event.wait(0.2)
@@ -272,9 +274,8 @@ class LineOdomNode(Node):
             except Exception as err:  # never let one frame kill the node
                 if self._slot.closed:
                     break
-                self.processor.counters["frames_failed"] += 1
-                self.processor.last_error = f"{type(err).__name__}: {err}"
                 self.get_logger().error(f"frame failed: {err}\n{traceback.format_exc()}")
+                self.processor.note_failure(f"{type(err).__name__}: {err}")
 
     def shutdown(self) -> None:
         self._slot.close()

@@ -23,6 +23,7 @@ from line_odom_core.config import Config, config_schema, load_config
 INPUTS = ("pointcloud", "depth")
 FIRST_POSE_VARIANCE = 1e-9  # the first pose is exact by definition; a floor keeps the covariance definite
 UNKNOWN_TWIST_VARIANCE = 1e6  # first frame after a (re)start: no motion observed yet
+LOG_REPEAT_S = 5.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -199,6 +200,8 @@ class OdometryProcessor:
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
             frames_duplicate=0, resets=0)
         self.last_error: str | None = None
+        self._last_logged: tuple[str, float] = ("", 0.0)
+        self._suppressed = 0
         self._receive_times: collections.deque = collections.deque(maxlen=50)
         self._latencies: collections.deque = collections.deque(maxlen=200)
         self._last_stats: dict = {}
@@ -247,10 +250,24 @@ class OdometryProcessor:
             self.counters["frames_dropped"] += n
 
     def _reject(self, kind: str, reason: str) -> None:
+        now = time.monotonic()
         with self._count_lock:
             self.counters[kind] += 1
             self.last_error = reason
-        self._warn(f"dropped frame: {reason}")
+            # the same reason again within LOG_REPEAT_S is counted, not logged again (no log flood at sensor rate)
+            repeat = reason == self._last_logged[0] and now - self._last_logged[1] < LOG_REPEAT_S
+            if not repeat:
+                suppressed, self._suppressed = self._suppressed, 0
+                self._last_logged = (reason, now)
+            else:
+                self._suppressed += 1
+        if not repeat:
+            more = f" (and {suppressed} more rejected frames since the last message)" if suppressed else ""
+            self._warn(f"dropped frame: {reason}{more}")
+
+    def note_failure(self, reason: str) -> None:
+        """A frame that failed for a reason outside the processor (counted as failed)."""
+        self._reject("frames_failed", reason)
 
     # ------------------------------------------------------------------ inputs
     @property
@@ -265,6 +282,16 @@ class OdometryProcessor:
             self._reject("frames_malformed", str(err))
             return False
         self._K = K
+        return True
+
+    def check_depth_image(self, msg) -> bool:
+        """Whether a depth Image converts (a malformed one is counted and logged) - for images that must wait
+        for their CameraInfo."""
+        try:
+            convert.image_to_depth(msg)
+        except convert.ConversionError as err:
+            self._reject("frames_malformed", str(err))
+            return False
         return True
 
     def process_pointcloud(self, msg, receive_time: float | None = None) -> FrameOutput | None:

@@ -110,6 +110,19 @@ def wait_diagnostics(h, node, predicate, what, timeout=60.0):
     return h.wait_for(ready, timeout, f"diagnostics: {what}", node)
 
 
+def send_until_counted(h, node, pub, msg, counter, expected, timeout=60.0):
+    """Publish a message the node must reject and wait until its diagnostics count it (republishing: a
+    best-effort message can be lost, and a rejected one changes no state)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        pub.publish(msg)
+        try:
+            return wait_diagnostics(h, node, lambda v: int(v[counter]) >= expected, f"{counter} = {expected}", 3.0)
+        except AssertionError:
+            continue
+    raise AssertionError(f"the node never counted {counter} = {expected}\n{node.output()[-4000:]}")
+
+
 def check_covariances(odom):
     for cov in (odom.pose.covariance, odom.twist.covariance):
         C = np.asarray(cov).reshape(6, 6)
@@ -342,18 +355,18 @@ def _bad_clouds(seq, stamp):
 
 def test_malformed_clouds_are_dropped_and_the_next_good_frame_processed(run_node):
     seq = kitti_sequence("07", 6)
-    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6})
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "diagnostics.period": 0.2})
     pub = h.publisher(PointCloud2, node.topic("points"), reliable=True)
     h.wait_matched(pub, node, STARTUP_S)
     stamp = 100.0
     cases = _bad_clouds(seq, 99.0)
     for k, (reason, bad) in enumerate(cases):
         bad.header.stamp = convert.sec_to_stamp(stamp + 0.1 * k)
-        pub.publish(bad)
+        send_until_counted(h, node, pub, bad, "frames_malformed", k + 1)
         good_stamp = stamp + 0.1 * k + 0.05
         publish_and_wait(h, node, pub, kitti_unorganized(seq, k, good_stamp), good_stamp)
-    values = wait_diagnostics(h, node, lambda v: int(v["frames_malformed"]) == len(cases), "malformed counted")
-    assert int(values["frames_processed"]) == len(cases)
+    values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == len(cases), "frames processed")
+    assert int(values["frames_malformed"]) == len(cases)
     log = node.output()
     for reason, _ in cases:
         assert reason in log, reason
@@ -361,27 +374,27 @@ def test_malformed_clouds_are_dropped_and_the_next_good_frame_processed(run_node
 
 def test_malformed_depth_inputs(run_node):
     seq = tum_sequence(frames=4)
-    node, h = run_node({"preset": "tum_kinect", "downsample": 10})
+    node, h = run_node({"preset": "tum_kinect", "downsample": 10, "diagnostics.period": 0.2})
     pub_img = h.publisher(Image, node.topic("depth/image"), reliable=True)
     pub_info = h.publisher(CameraInfo, node.topic("depth/camera_info"), reliable=True)
     h.wait_matched(pub_img, node, STARTUP_S)
     h.wait_for(lambda: pub_info.get_subscription_count() > 0, 30, "camera_info subscription", node)
     zero_f = convert.camera_info_from_K(np.diag([0.0, 0.0, 1.0]), 640, 480, stamp=float(seq.stamps[0]))
-    pub_info.publish(zero_f)
+    send_until_counted(h, node, pub_info, zero_f, "frames_malformed", 1)
     rgb = convert.depth_to_image(seq.depth(0), stamp=float(seq.stamps[0]))
     rgb.encoding = "rgb8"
-    pub_img.publish(rgb)
+    send_until_counted(h, node, pub_img, rgb, "frames_malformed", 2)
     good_info = convert.camera_info_from_K(seq.K, 640, 480)
     for i in (1, 2):
         stamp = float(seq.stamps[i])
         good_info.header.stamp = convert.sec_to_stamp(stamp)
         pub_info.publish(good_info)
         publish_and_wait(h, node, pub_img, convert.depth_to_image(seq.depth(i), stamp=stamp), stamp)
-    pub_info.publish(zero_f)  # a bad CameraInfo later keeps the last good intrinsics
+    send_until_counted(h, node, pub_info, zero_f, "frames_malformed", 3)  # the last good K is kept
     stamp = float(seq.stamps[3])
     publish_and_wait(h, node, pub_img, convert.depth_to_image(seq.depth(3), stamp=stamp), stamp)
-    values = wait_diagnostics(h, node, lambda v: int(v["frames_malformed"]) == 3, "malformed counted")
-    assert int(values["frames_processed"]) == 3
+    values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == 3, "frames processed")
+    assert int(values["frames_malformed"]) == 3
     log = node.output()
     assert "focal length must be > 0" in log and "unsupported depth encoding 'rgb8'" in log
 

@@ -257,3 +257,21 @@ def test_se3_log_and_left_jacobian_inverse_against_finite_differences():
     # adjoint: T exp(xi) T^-1 = exp(Ad_T xi)
     T = _T([1, 2, 3], [0.3, -0.2, 0.5])
     np.testing.assert_allclose(T @ D @ np.linalg.inv(T), expm(hat(frames.adjoint(T) @ xi)), atol=1e-12)
+
+
+def test_repeated_rejections_are_counted_but_logged_once():
+    messages = []
+    log = type("Log", (), {"info": lambda self, m: None, "warning": lambda self, m: messages.append(m)})()
+    config = load_config("kitti_hdl64")
+    proc = OdometryProcessor(config, NodeSettings.from_mapping(config.extra), engine=ScriptedEngine([], np.eye(6)),
+                             logger=log)
+    bad = _cloud(1.0)
+    bad.fields = bad.fields[1:]
+    for _ in range(20):
+        assert proc.process_pointcloud(bad) is None
+    assert proc.counters["frames_malformed"] == 20
+    assert len(messages) == 1 and "no 'x' field" in messages[0]
+    empty = _cloud(2.0)
+    empty.width = 0
+    proc.process_pointcloud(empty)  # a different reason is logged at once, with the suppressed count
+    assert len(messages) == 2 and "empty cloud" in messages[1] and "19 more" in messages[1]
