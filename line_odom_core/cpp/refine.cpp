@@ -13,6 +13,9 @@ Mat3 skew(const Vec3& w) {
   return S;
 }
 
+constexpr double kConvergedTranslation = 1e-5;  // m: a step this small ends the iteration
+constexpr double kConvergedRotation = 1e-6;     // rad
+
 double huber_weight(double r_abs, double delta) { return r_abs <= delta ? 1.0 : delta / r_abs; }
 
 // Normal equations of the gated residuals at T.
@@ -53,7 +56,7 @@ NormalEquations accumulate(const Correspondences& data, const RigidTransform& T,
     J.head<3>() = b.d.cross(a.d) / s;
     J.tail<3>() = (b.m.cross(a.d) + b.d.cross(a.m)) / s;
     const double w = w_pair * weight_scale * huber_weight(std::abs(r), huber);
-    ne.H.noalias() += w * J * J.transpose();
+    ne.H.selfadjointView<Eigen::Lower>().rankUpdate(J, w);
     ne.g.noalias() += w * r * J;
     ne.weighted_sq += w * r * r;
     ne.weight_sum += w_pair * weight_scale;
@@ -66,6 +69,7 @@ NormalEquations accumulate(const Correspondences& data, const RigidTransform& T,
   const double k_dist = o.line_threshold / o.plane_distance_threshold;
   const double cos_th = std::cos(o.plane_angle_threshold);
   const size_t m = std::min(data.planes_a.size(), data.planes_b.size());
+  ne.H.triangularView<Eigen::StrictlyUpper>() = ne.H.transpose();
   for (size_t j = 0; j < m; ++j) {
     const Plane& a = data.planes_a[j];
     const Plane b = data.planes_b[j].moved(T);
@@ -175,7 +179,7 @@ bool refine_motion(const Correspondences& data, const RigidTransform& T0, const 
     const RigidTransform step = se3_exp(dx);
     T = step * T;
     res.iterations = it + 1;
-    if (dx.head<3>().norm() < 1e-9 && dx.tail<3>().norm() < 1e-10) break;
+    if (dx.head<3>().norm() < kConvergedTranslation && dx.tail<3>().norm() < kConvergedRotation) break;
   }
 
   const NormalEquations ne = accumulate(data, ok ? T : T0, options, weight_scale);
