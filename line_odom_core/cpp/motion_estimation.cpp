@@ -169,7 +169,7 @@ class MotionHybridEstimator {
                                                                       : 0;
     solve_7l_.method = options.solve_7l_method;
     solve_7l_.max_iterations = options.solve_7l_max_iterations > 0 ? options.solve_7l_max_iterations
-                               : options.solve_7l_method == Solve7LMethod::kGaussNewton ? 30
+                               : options.solve_7l_method == Solve7LMethod::kGaussNewton ? 12
                                                                                         : 30000;
     solve_7l_.max_residual = 3.0 * options.inlier_threshold;
   }
