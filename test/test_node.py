@@ -468,3 +468,21 @@ def test_parameters_declared_with_descriptors_from_preset_and_params_file(run_no
     assert "pointcloud" in by_name["input"].additional_constraints
     log = node.output()
     assert "ransac.inlier_threshold = 1.0" in log and "base_frame = robot_base" in log  # logged at start-up
+
+
+def test_stamp_going_backwards_resets_with_a_warning(run_node):
+    """A looping bag: the stamps jump back, the node warns, resets and starts again at initial_pose."""
+    seq = kitti_sequence("07", 3)
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "diagnostics.period": 0.2})
+    pub = h.publisher(PointCloud2, node.topic("points"), reliable=True)
+    h.wait_matched(pub, node, STARTUP_S)
+    stamps = [300.0 + float(t) for t in seq.times]
+    for i in (0, 1, 2):
+        last = publish_and_wait(h, node, pub, kitti_unorganized(seq, i, stamps[i]), stamps[i])
+    assert np.linalg.norm(pose_matrix(last.pose.pose)[:3, 3]) > 0.1
+    loop_stamp = 299.0
+    odom = publish_and_wait(h, node, pub, kitti_unorganized(seq, 2, loop_stamp), loop_stamp)
+    np.testing.assert_allclose(pose_matrix(odom.pose.pose), np.eye(4), atol=1e-9)
+    values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == 4, "frames processed")
+    assert int(values["resets"]) == 1
+    assert "stamp went backwards" in node.output()
