@@ -59,7 +59,7 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("lines.max_gap", int, 2, "missing cells bridged inside one line", 0, 1000),
     ConfigEntry("lines.min_incidence_deg", float, 4.0, "steps closer than this to the viewing ray are depth "
                 "jumps (deg)", 0.0, 90.0),
-    ConfigEntry("lines.trim_sigmas", float, 3.0, "line end points farther than this many rms from the line are "
+    ConfigEntry("lines.trim_sigmas", float, 5.0, "line end points farther than this many rms from the line are "
                 "trimmed", 0.0, 100.0),
     ConfigEntry("lines.max_outliers", int, 2, "stray points skipped between two collinear pieces", 0, 1000),
     # --- line normals from H/V crossings and their 3 clusters, paper §6.2-6.3 ---
@@ -117,7 +117,7 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("ransac.refine_iterations", int, 10, "least-squares iterations on all inliers", 0, 1000),
     ConfigEntry("ransac.huber_delta", float, 0.0, "robust loss width of the refinement (m); 0 = inlier "
                 "threshold", 0.0, 10.0),
-    ConfigEntry("ransac.degeneracy_threshold", float, 1e-5, "the refinement is degenerate when its normal matrix "
+    ConfigEntry("ransac.degeneracy_threshold", float, 1e-3, "the refinement is degenerate when its normal matrix "
                 "(rotations scaled to metres) is worse conditioned than this", 0.0, 1.0),
     ConfigEntry("registration.passes", int, 3, "candidate + RANSAC passes per frame, each seeded with the best "
                 "estimate so far (paper §6.3: 3)", 1, 10),

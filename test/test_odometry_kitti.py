@@ -13,9 +13,10 @@ import line_odom_core
 from line_odom.datasets import kitti_sequence
 from line_odom.metrics import relative_pose_errors
 
-# 1/36, ten frames: measured mean (t m, r deg) 00: 0.121/0.194, 04: 0.20/0.15, 07: 0.011/0.064
-# (KISS-ICP on the same points: 0.196/0.157, 0.068/0.087, 0.029/0.117).
-BOUNDS_1_36 = {"00": (0.25, 0.40), "04": (0.40, 0.30), "07": (0.025, 0.13)}
+# 1/36, ten frames: measured mean (t m, r deg) 00: 0.120/0.209, 04: 0.068/0.204, 07: 0.009/0.055
+# (KISS-ICP on the same points: 0.196/0.152, 0.063/0.085, 0.026/0.094). 04 (a highway: the lines hardly observe
+# the forward motion at this density) is the fragile one: 0.02 to 0.6 m across feature-fitting versions.
+BOUNDS_1_36 = {"00": (0.25, 0.40), "04": (0.25, 0.40), "07": (0.025, 0.13)}
 # full resolution, first three frames of 07: measured mean ~0.008 m / 0.018 deg (KISS-ICP 0.023 / 0.041).
 BOUND_FULL_07 = (0.02, 0.05)
 
