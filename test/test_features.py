@@ -46,6 +46,10 @@ def synthetic_scan(rows=48, cols=720, noise=0.002, seed=0):
     return xyz
 
 
+# The synthetic scan has 2 mm noise: thresholds scaled to it (the KITTI preset is for ~2 cm range noise).
+SYNTHETIC_CONFIG = {"lines.split_distance": 0.02, "lines.max_rms": 0.01, "planes.max_distance": 0.03}
+
+
 def plane_distances(x: np.ndarray) -> np.ndarray:
     """|n·x + delta| to every scene plane, (..., n_planes)."""
     return np.stack([np.abs(x @ n + d) for n, d in PLANES], axis=-1)
@@ -69,7 +73,7 @@ def assert_finite(f):
 
 def test_synthetic_lines_lie_on_the_planes_with_their_normals():
     xyz = synthetic_scan()
-    f = _core.extract_features(xyz)
+    f = _core.extract_features(xyz, SYNTHETIC_CONFIG)
     assert_finite(f)
     assert len(f["h_lines"]["rms"]) > 100 and len(f["v_lines"]["rms"]) > 300
     normals = np.array([n for n, _ in PLANES])
@@ -95,7 +99,7 @@ def test_synthetic_lines_lie_on_the_planes_with_their_normals():
 
 
 def test_synthetic_clusters_and_planes():
-    f = _core.extract_features(synthetic_scan())
+    f = _core.extract_features(synthetic_scan(), SYNTHETIC_CONFIG)
     axes = R_SCENE.T  # rows: the scene's three directions
     dirs = f["cluster_directions"]
     cos = np.abs(dirs @ axes.T)
@@ -137,7 +141,7 @@ def test_holes_never_produce_lines():
     xyz[:, 100:110] = np.nan  # a 10-column gap
     xyz[5:9] = 0.0  # zero points are holes too
     valid = np.isfinite(xyz).all(axis=2) & (np.abs(xyz).sum(axis=2) > 0)
-    f = _core.extract_features(xyz)
+    f = _core.extract_features(xyz, SYNTHETIC_CONFIG)
     assert_finite(f)
     max_gap = int(_core.feature_config()["lines.max_gap"])
     for name, L in all_lines(f):
@@ -235,12 +239,14 @@ def test_kitti_ground_plane_and_lines(seq):
     st = f["stats"]
     assert st["h_lines"] > 2000 and st["v_lines"] > 4000, st
     assert st["lines_with_normal"] > 0.7 * (st["h_lines"] + st["v_lines"])
-    # The largest plane is the ground: normal +z within 3 deg, 1.73 m below the sensor (the HDL-64E's
-    # mounting height; measured 1.68-1.79 m on these frames: the road is not level with the sensor).
-    n, delta = f["planes"]["planes"][0, :3], f["planes"]["planes"][0, 3]
-    assert n[2] > np.cos(np.radians(3.0)), n
-    assert abs(delta - 1.73) < 0.12, delta
-    assert f["planes"]["rms"][0] < 0.06
+    # The ground: the largest plane is level (normal +z within 5 deg) about 1.73 m below the sensor (the
+    # HDL-64E's mounting height), and one of the three largest is the road at 1.73 m within 6 cm. (On the 04
+    # highway the lanes and shoulders are separate planes: measured 1.98, 1.61, 1.77 m; 00: 1.77, 07: 1.76.)
+    P = f["planes"]["planes"]
+    assert P[0, 2] > np.cos(np.radians(5.0)) and abs(P[0, 3] - 1.73) < 0.3, P[0]  # 04: a lane banked 3.4 deg
+    level = P[:3, 2] > np.cos(np.radians(3.0))
+    assert (level & (np.abs(P[:3, 3] - 1.73) < 0.06)).any(), P[:3]
+    assert (f["planes"]["rms"] < 0.06).all()
     # Lines lie on the points they cover (a few skipped stray points aside).
     med = assert_lines_fit_their_points(ri["points"], f)
     assert np.median(med) < 0.015, np.median(med)
@@ -261,8 +267,9 @@ def test_kitti_sparse_clusters(seq, step, floor):
         assert_finite(f)
         sizes = f["stats"]["cluster_sizes"]
         assert all(s >= fl for s, fl in zip(sizes, floor)), (frame, sizes)
-        n, delta = f["planes"]["planes"][0, :3], f["planes"]["planes"][0, 3]
-        assert n[2] > np.cos(np.radians(3.0)) and abs(delta - 1.73) < 0.15
+        P = f["planes"]["planes"]
+        assert P[0, 2] > np.cos(np.radians(5.0)) and abs(P[0, 3] - 1.73) < 0.3, P[0]
+        assert ((P[:3, 2] > np.cos(np.radians(3.0))) & (np.abs(P[:3, 3] - 1.73) < 0.08)).any(), P[:3]
         assert_lines_fit_their_points(ri["points"], f, fraction=0.98)
 
 

@@ -32,7 +32,7 @@ struct LineFitConfig {
   int max_gap = 2;                  // lines.max_gap: missing cells bridged inside one line
   double min_incidence_deg = 4.0;   // lines.min_incidence_deg: steps closer than this to the ray are jumps
   int max_outliers = 2;             // lines.max_outliers: stray points skipped between two collinear pieces
-  double trim_sigmas = 3.0;         // lines.trim_sigmas: end points beyond this x rms of the line's middle half go
+  double trim_sigmas = 5.0;         // lines.trim_sigmas: end points beyond this x rms of the line's middle half go
 
   double threshold_scale(double range) const {
     return 1.0 + threshold_per_m * range + threshold_per_m2 * range * range;

@@ -189,7 +189,9 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
         PointMoments u = region_moments[a];
         u.add(region_moments[b]);
         const PlaneEstimate pu = pca_plane(u);
-        if (!(std::sqrt(pu.lambda_min) <= config.max_rms)) continue;
+        // the union must fit about as well as its parts (not two parallel surfaces a step apart)
+        const double parts_rms = std::sqrt(std::max(pa.lambda_min, pb.lambda_min));
+        if (!(std::sqrt(pu.lambda_min) <= std::min(config.max_rms, 1.25 * parts_rms + 0.005))) continue;
         region_moments[a] = u;
         est[a] = pu;
         regions[a].lines.insert(regions[a].lines.end(), regions[b].lines.begin(), regions[b].lines.end());
