@@ -63,6 +63,22 @@ def _ransac_translation_2d(points_a: npt.ArrayLike, points_b: npt.ArrayLike, dir
                            min_iterations: int = 0, confidence: float = 0.999, seed: int = 0
                            ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
 
+# ---- scan features (issue 4) ----
+
+# Range image dicts: points (H, W, 3) float64 with NaN holes, valid (H, W) bool, source_index (H, W) int32
+# (organize_points only), stats (input/kept/invalid/out_of_range/outside_rows/cell_collisions, row_method).
+def organize_points(points: npt.ArrayLike, ring: npt.ArrayLike | None = None, sensor: str = "hdl64",
+                    min_range: float = 0.0, max_range: float = 1e9, downsample: int = 1) -> dict[str, Any]: ...
+def organize_depth(depth: npt.ArrayLike, K: npt.ArrayLike, min_depth: float = 0.0, max_depth: float = 1e9,
+                   downsample: int = 1) -> dict[str, Any]: ...
+# {"h_lines"/"v_lines": {segments (N,2,3), plucker (N,6), normals (N,3), cluster, rms, support, scan_index,
+#  first, last, normal_support, plane}, "planes": {planes (P,4) [n, delta], centroids (P,3), rms, support},
+#  "cluster_directions" (3,3), "stats": {...}}
+def extract_features(range_image: npt.ArrayLike, config: dict[str, float | int | bool] | None = None,
+                     preset: str = "kitti") -> dict[str, Any]: ...
+def feature_config(preset: str = "kitti") -> dict[str, float]: ...
+def sensor_presets() -> list[str]: ...
+
 # ---- odometry pipeline (issue 4) ----
 
 class FrameResult:
