@@ -28,6 +28,16 @@ def use_large_message_profile() -> None:
     os.environ.update(PROFILE_ENV)
 
 
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM it when the test process dies (a killed pytest leaves no node behind)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
 def _ros_value(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -51,7 +61,7 @@ class NodeProcess:
         args += extra_args or []
         self.log = tempfile.NamedTemporaryFile("w+", prefix="line_odom_node_", suffix=".log", delete=False)
         self.proc = subprocess.Popen(args, cwd=str(ROOT), env={**env, **PROFILE_ENV}, stdout=self.log,
-                                     stderr=subprocess.STDOUT)
+                                     stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)
 
     def output(self) -> str:
         self.log.flush()
