@@ -14,7 +14,7 @@ demo: setup
 	$(VENV_PYTHON) -m line_odom demo
 
 test: setup
-	$(VENV_PYTHON) -m pytest -q test $(PYTEST_ARGS)
+	$(VENV_PYTHON) -m pytest -q --durations=10 test $(PYTEST_ARGS)
 
 # removes what setup and builds created inside the checkout (not ../shared)
 clean:

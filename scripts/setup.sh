@@ -21,7 +21,7 @@ PY="$VENV/bin/python"
 STAMPS="$VENV/.setup"
 REQ="$ROOT/requirements"
 
-say() { echo "setup: $*"; }
+say() { echo "setup: [${SECONDS}s] $*"; }
 die() { echo "setup: ERROR: $*" >&2; exit 1; }
 
 # pip on some machines is configured with local indexes that print one warning per package looked up;
@@ -146,4 +146,4 @@ fi
 
 (cd / && "$PY" -c 'import line_odom, line_odom_core, rclpy, tf2_msgs.msg') \
     || die "final check failed: .venv/bin/python cannot import line_odom, line_odom_core, rclpy and tf2_msgs"
-say "ready: $PY (${SECONDS} s)"
+say "ready: $PY"
