@@ -50,7 +50,9 @@ class SegmentGrid {
 
   void sample_keys(const Segment& s, std::vector<std::int64_t>* keys, bool with_neighbours = false) const {
     const double len = s.length();
-    if (!std::isfinite(len)) return;
+    // A segment longer than kMaxSamples steps (kilometres at LiDAR settings: only corrupted input, e.g. absurd
+    // intrinsics) is not bucketed, so one bad frame cannot allocate without bound.
+    if (!std::isfinite(len) || len > kMaxSamples * step_) return;
     const int n = 1 + static_cast<int>(std::ceil(len / step_));
     for (int i = 0; i <= n; ++i) {
       const Vec3 p = s.a + (s.b - s.a) * (static_cast<double>(i) / n);
@@ -69,6 +71,7 @@ class SegmentGrid {
     keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
   }
 
+  static constexpr double kMaxSamples = 4096.0;
   double cell_, step_;
   std::vector<std::pair<std::int64_t, int>> entries_;
 };
