@@ -322,3 +322,31 @@ def test_core_odometry_rejects_bad_settings_and_arrays_with_value_errors():
         engine.register_points(scene_points(0), 0.0, np.zeros(3, np.int32))
     res = engine.register_points(scene_points(0), 0.0)
     assert np.isfinite(np.asarray(res.pose)).all()
+
+
+ABSURD_INTRINSICS_CHILD = r"""
+import time, numpy as np, line_odom_core
+depth = np.random.default_rng(0).integers(1, 8, (24, 40)).astype(np.float32)
+K = np.array([[1e-5, 0, 20], [0, 0.02, 12], [0, 0, 1.0]])  # fx 1e-5: back-projected points ~1e6 m away
+odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect"))
+for k in range(3):
+    r = odom.register_depth(depth, K, 0.033 * k)
+    assert np.isfinite(r.pose).all() and np.isfinite(r.covariance).all()
+print("ok")
+"""
+
+
+def test_absurd_intrinsics_register_in_bounded_memory_and_time():
+    """Found by the depth fuzzer: a tiny focal length puts points ~1e6 m away and the candidate grid sampled those
+    kilometre-long segments every few centimetres (> 6 GB, minutes). Run in a child with a 3 GB address-space limit
+    so a regression fails this test instead of taking the machine down."""
+    import resource
+    import subprocess
+    import sys
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+    proc = subprocess.run([sys.executable, "-c", ABSURD_INTRINSICS_CHILD], capture_output=True, text=True,
+                          timeout=180, preexec_fn=limit)
+    assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stdout[-2000:] + proc.stderr[-3000:]
