@@ -125,9 +125,6 @@ def test_stamp_going_backwards_resets_to_the_initial_pose(street):
     assert proc.counters["resets"] == 2
 
 
-@pytest.mark.xfail(strict=True, reason="known engine bug (reported to registration, 2026-11-25): after a 5 s gap the "
-                   "constant-velocity prediction is extrapolated (clamped at 5x the last motion, 5 m) and the refined guess "
-                   "is accepted as a confident ~5.5 m motion although the car stood still")
 def test_pause_of_several_seconds_while_standing_still(street):
     """The car stops and the sensor stream pauses for 5 s; when frames resume from the same place the odometry
     must not jump by velocity x 5 s (50 m): finite, a motion near zero or a flagged hold, and tracking within bounds

@@ -236,6 +236,11 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   result.stamp = stamp;
   FrameStats& st = result.stats;
   st.ms.organize = organize_ms;
+  if (have_velocity_ && stamp - prev_stamp_ > config_.registration.max_prediction_gap) {
+    // After a pause the last motion says nothing about this one: no extrapolation, find the motion afresh.
+    have_velocity_ = false;
+    last_delta_ = RigidTransform::identity();
+  }
 
   Stopwatch stage;
   RangeImage sparse;
@@ -400,6 +405,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);
   visit("registration.constant_velocity", c.registration.constant_velocity);
+  visit("registration.max_prediction_gap", c.registration.max_prediction_gap);
   visit("registration.guess_preference", c.registration.guess_preference);
   visit("registration.coarse_downsample", c.registration.coarse_downsample);
   visit("registration.covariance_scale", c.registration.covariance_scale);
