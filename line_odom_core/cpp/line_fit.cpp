@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -77,7 +78,7 @@ struct CandidateLine {
 double residual(const LineLeastSquares& f, const Vec3& p) { return (p - f.centroid).cross(f.direction).norm(); }
 
 // Squared distance to the line over the squared threshold: > 1 means outside.
-double excess2(const LineLeastSquares& f, const ScanBuffer& buf, int k) {
+inline __attribute__((always_inline)) double excess2(const LineLeastSquares& f, const ScanBuffer& buf, int k) {
   return (buf.p[k] - f.centroid).cross(f.direction).squaredNorm() * buf.inv_tau2[k];
 }
 
@@ -110,14 +111,24 @@ int chord_ratios(const double* __restrict X0, const double* __restrict Y0, const
       R[i] = (ux * ux + uy * uy + uz * uz) * (inv_len2 * W[i]);
     }
   }
-  double worst = 1.0;  // squared distance / squared threshold
-  int split = -1;
-  for (int i = 0; i < n; ++i)
-    if (R[i] > worst) {
-      worst = R[i];
-      split = 1 + i;
-    }
-  return split;
+  // First index of the largest ratio above 1. The ratios are >= +0 (squares times positive factors), so they
+  // order as their bit patterns do: a vectorized integer max, then the first index holding it.
+  auto bits = [R](int i) {
+    std::int64_t b;
+    std::memcpy(&b, R + i, sizeof b);
+    return b;
+  };
+  std::int64_t top = 0;
+  for (int i = 0; i < n; ++i) {
+    const std::int64_t b = bits(i);
+    top = b > top ? b : top;
+  }
+  double worst;
+  std::memcpy(&worst, &top, sizeof worst);
+  if (!(worst > 1.0)) return -1;
+  int i = 0;
+  while (bits(i) != top) ++i;
+  return 1 + i;
 }
 
 class ScanLineFitter {
@@ -326,17 +337,20 @@ class ScanLineFitter {
         limit_rms = judge.rms * std::sqrt(core.count / (core.count - 2.0));
       }
       const bool short_line = c.moments.count < 12;
+      // residual > max(limit, floor), the floor (a sqrt) computed only when the residual exceeds the limit
+      auto beyond = [&](double r, double limit, int k) {
+        return r > limit && r > 0.5 * cfg_.max_rms * cfg_.threshold_scale(buf.p[k].norm());
+      };
       auto off = [&](int k) {
-        const double floor = 0.5 * cfg_.max_rms * cfg_.threshold_scale(buf.p[k].norm());
         if (short_line && c.moments.count >= 5) {  // judged by the line through the other points
           Moments rest = c.moments;
           remove_point(&rest, buf.p[k]);
           const LineLeastSquares f = fit_line(rest, c.fit.direction);
           const double rms = f.rms * std::sqrt(rest.count / (rest.count - 2.0));
-          return excess2(f, buf, k) > 1.0 || residual(f, buf.p[k]) > std::max(cfg_.trim_sigmas * rms, floor);
+          return excess2(f, buf, k) > 1.0 || beyond(residual(f, buf.p[k]), cfg_.trim_sigmas * rms, k);
         }
         if (excess2(judge, buf, k) > 1.0) return true;
-        return residual(judge, buf.p[k]) > std::max(cfg_.trim_sigmas * limit_rms, floor);
+        return beyond(residual(judge, buf.p[k]), cfg_.trim_sigmas * limit_rms, k);
       };
       int lo = c.first, hi = c.last;
       while (hi > lo && off(lo)) lo = next_inlier(lo, 1);
@@ -541,14 +555,16 @@ LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, d
   const double xx = oxx * inv_n - c.x() * c.x(), xy = oxy * inv_n - c.x() * c.y();
   const double xz = oxz * inv_n - c.x() * c.z(), yy = oyy * inv_n - c.y() * c.y();
   const double yz = oyz * inv_n - c.y() * c.z(), zz = ozz * inv_n - c.z() * c.z();
-  auto apply = [&](const Vec3& v) {
-    return Vec3(xx * v.x() + xy * v.y() + xz * v.z(), xy * v.x() + yy * v.y() + yz * v.z(),
-                xz * v.x() + yz * v.y() + zz * v.z());
-  };
   // Unnormalized iterations (the scale grows like lambda_max^k, harmless in double), one normalization.
-  Vec3 d = seed;
-  for (int it = 0; it < iterations; ++it) d = apply(d);
-  const double norm2 = d.squaredNorm();
+  // Scalar code: the same operations, in the same order, as the Eigen expressions C d, |d|^2, d / |d|, d.C d.
+  double dx = seed.x(), dy = seed.y(), dz = seed.z();
+  for (int it = 0; it < iterations; ++it) {
+    const double nx = xx * dx + xy * dy + xz * dz;
+    const double ny = xy * dx + yy * dy + yz * dz;
+    const double nz = xz * dx + yz * dy + zz * dz;
+    dx = nx, dy = ny, dz = nz;
+  }
+  const double norm2 = dx * dx + dy * dy + dz * dz;
   const double trace = xx + yy + zz;
   if (!(norm2 > 1e-300) || !std::isfinite(norm2)) {
     if (iterations > 0 && seed.squaredNorm() > 0.0 && trace > 0.0) {  // seed orthogonal to the spread
@@ -557,9 +573,13 @@ LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, d
     }
     return f;  // all points equal
   }
-  d /= std::sqrt(norm2);
-  f.direction = d;
-  f.rms = std::sqrt(std::max(0.0, trace - d.dot(apply(d))));
+  const double norm = std::sqrt(norm2);
+  dx /= norm, dy /= norm, dz /= norm;
+  f.direction = Vec3(dx, dy, dz);
+  const double cx = xx * dx + xy * dy + xz * dz;
+  const double cy = xy * dx + yy * dy + yz * dz;
+  const double cz = xz * dx + yz * dy + zz * dz;
+  f.rms = std::sqrt(std::max(0.0, trace - (dx * cx + dy * cy + dz * cz)));
   return f;
 }
 
