@@ -15,65 +15,96 @@ double deg2rad(double deg) { return deg * kPi / 180.0; }
 
 // Segments are bucketed in a sparse voxel grid by points sampled along them. With samples every
 // cell/3 along both segments, two segments closer than `max_distance` = 2/3 cell have samples in
-// neighbouring cells, so a 27-cell lookup finds every partner.
+// neighbouring cells, so a 27-cell lookup around each sample of the query finds every partner. Cells are
+// found through an open-addressing hash of cell keys to runs of a sorted (key, id) array.
 class SegmentGrid {
  public:
   SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance)
       : cell_(1.5 * std::max(max_distance, 1e-3)), step_(cell_ / 3.0) {
-    std::vector<std::int64_t> keys;
-    for (int id = 0; id < static_cast<int>(lines.size()); ++id) {
-      keys.clear();
-      sample_keys(lines[id]->segment, &keys);
-      for (std::int64_t k : keys) entries_.emplace_back(k, id);
-    }
+    for (int id = 0; id < static_cast<int>(lines.size()); ++id)
+      for_each_sample_cell(lines[id]->segment,
+                           [&](std::int64_t x, std::int64_t y, std::int64_t z) { entries_.emplace_back(pack(x, y, z), id); });
     std::sort(entries_.begin(), entries_.end());
     entries_.erase(std::unique(entries_.begin(), entries_.end()), entries_.end());
+    size_t cells = 0;
+    for (size_t i = 0; i < entries_.size(); ++i) cells += (i == 0 || entries_[i].first != entries_[i - 1].first);
+    size_t capacity = 16;
+    while (capacity < 2 * cells) capacity *= 2;
+    mask_ = capacity - 1;
+    slots_.assign(capacity, Slot{});
+    ids_.reserve(entries_.size());
+    for (size_t i = 0; i < entries_.size();) {
+      size_t j = i;
+      while (j < entries_.size() && entries_[j].first == entries_[i].first) ids_.push_back(entries_[j++].second);
+      size_t h = hash(entries_[i].first) & mask_;
+      while (slots_[h].end != 0) h = (h + 1) & mask_;
+      slots_[h] = {entries_[i].first, static_cast<int>(i), static_cast<int>(j)};
+      i = j;
+    }
   }
 
   // Calls visit(id) for every bucketed segment with a sample in a cell next to a sample of `query`
   // (an id may be visited more than once).
   template <typename Visit>
   void for_each_near(const Segment& query, Visit&& visit) const {
-    std::vector<std::int64_t> keys;
-    sample_keys(query, &keys, /*with_neighbours=*/true);
-    for (std::int64_t k : keys) {
-      auto lo = std::lower_bound(entries_.begin(), entries_.end(), std::make_pair(k, -1));
-      for (; lo != entries_.end() && lo->first == k; ++lo) visit(lo->second);
-    }
+    for_each_sample_cell(query, [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dz = -1; dz <= 1; ++dz) {
+            const std::int64_t k = pack(x + dx, y + dy, z + dz);
+            for (size_t h = hash(k) & mask_; slots_[h].end != 0; h = (h + 1) & mask_) {
+              if (slots_[h].key != k) continue;
+              for (int e = slots_[h].begin; e < slots_[h].end; ++e) visit(ids_[e]);
+              break;
+            }
+          }
+    });
   }
 
  private:
+  struct Slot {
+    std::int64_t key = 0;
+    int begin = 0, end = 0;  // end == 0: empty slot
+  };
+
+  // Cell coordinates wrap at 2^21 per axis (thousands of km at any sensible cell size); aliased cells only add
+  // visits that the distance test rejects.
   static std::int64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
     constexpr std::int64_t kOffset = 1 << 20, kMask = (1 << 21) - 1;
     return ((x + kOffset) & kMask) | (((y + kOffset) & kMask) << 21) | (((z + kOffset) & kMask) << 42);
   }
+  static size_t hash(std::int64_t k) {
+    std::uint64_t z = static_cast<std::uint64_t>(k) * 0x9e3779b97f4a7c15ULL;
+    return static_cast<size_t>(z ^ (z >> 29));
+  }
 
-  void sample_keys(const Segment& s, std::vector<std::int64_t>* keys, bool with_neighbours = false) const {
+  // Calls f(x, y, z) for each cell holding a sample of s (consecutive repeats skipped).
+  template <typename F>
+  void for_each_sample_cell(const Segment& s, F&& f) const {
     const double len = s.length();
     // A segment longer than kMaxSamples steps (kilometres at LiDAR settings: only corrupted input, e.g. absurd
     // intrinsics) is not bucketed, so one bad frame cannot allocate without bound.
     if (!std::isfinite(len) || len > kMaxSamples * step_) return;
     const int n = 1 + static_cast<int>(std::ceil(len / step_));
+    std::int64_t previous = 0;
     for (int i = 0; i <= n; ++i) {
       const Vec3 p = s.a + (s.b - s.a) * (static_cast<double>(i) / n);
       const std::int64_t cx = static_cast<std::int64_t>(std::floor(p.x() / cell_));
       const std::int64_t cy = static_cast<std::int64_t>(std::floor(p.y() / cell_));
       const std::int64_t cz = static_cast<std::int64_t>(std::floor(p.z() / cell_));
-      if (!with_neighbours) {
-        keys->push_back(pack(cx, cy, cz));
-        continue;
-      }
-      for (int dx = -1; dx <= 1; ++dx)
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dz = -1; dz <= 1; ++dz) keys->push_back(pack(cx + dx, cy + dy, cz + dz));
+      const std::int64_t k = pack(cx, cy, cz);
+      if (i > 0 && k == previous) continue;
+      previous = k;
+      f(cx, cy, cz);
     }
-    std::sort(keys->begin(), keys->end());
-    keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
   }
 
   static constexpr double kMaxSamples = 4096.0;
   double cell_, step_;
   std::vector<std::pair<std::int64_t, int>> entries_;
+  std::vector<int> ids_;
+  std::vector<Slot> slots_;
+  size_t mask_ = 0;
 };
 
 struct LinePair {
@@ -116,8 +147,11 @@ void match_lines(const std::vector<LineFeature>& lines_a, const std::vector<Line
       if (dist <= opt.max_distance) partners.push_back({&la, &lb, dist});
     });
     if (opt.max_pairs_per_line > 0 && static_cast<int>(partners.size()) > opt.max_pairs_per_line) {
+      // Closest k; ties broken by line, so the choice does not depend on the grid's traversal order.
       std::nth_element(partners.begin(), partners.begin() + opt.max_pairs_per_line, partners.end(),
-                       [](const LinePair& x, const LinePair& y) { return x.distance < y.distance; });
+                       [](const LinePair& x, const LinePair& y) {
+                         return x.distance < y.distance || (x.distance == y.distance && x.a < y.a);
+                       });
       partners.resize(opt.max_pairs_per_line);
     }
     // Deterministic order regardless of grid traversal.
