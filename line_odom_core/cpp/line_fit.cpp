@@ -33,10 +33,14 @@ struct Moments {
   }
 };
 
-LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, double oxz, double oyy, double oyz,
-                           double ozz, const Vec3& seed, int iterations);
+// Hot (inlined into every caller); its rare retry refit_from_axis stays out of line.
+inline __attribute__((always_inline)) LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy,
+                                                                 double oxz, double oyy, double oyz, double ozz,
+                                                                 const Vec3& seed, int iterations);
+LineLeastSquares refit_from_axis(int count, const Vec3& sum, double oxx, double oxy, double oxz, double oyy,
+                                 double oyz, double ozz, int axis, int iterations);
 
-LineLeastSquares fit_line(const Moments& m, const Vec3& seed) {
+inline __attribute__((always_inline)) LineLeastSquares fit_line(const Moments& m, const Vec3& seed) {
   return fit_upper(m.count, m.sum, m.xx, m.xy, m.xz, m.yy, m.yz, m.zz, seed, 3);
 }
 
@@ -542,8 +546,8 @@ LineLeastSquares fit_line(const PointMoments& moments, const Vec3& seed, int ite
 namespace {
 
 // fit_line from the count, sum and upper triangle of the sum of outer products.
-LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, double oxz, double oyy, double oyz,
-                           double ozz, const Vec3& seed, int iterations) {
+inline LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, double oxz, double oyy,
+                                  double oyz, double ozz, const Vec3& seed, int iterations) {
   LineLeastSquares f;
   f.count = count;
   if (count == 0) return f;
@@ -569,7 +573,8 @@ LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, d
   if (!(norm2 > 1e-300) || !std::isfinite(norm2)) {
     if (iterations > 0 && seed.squaredNorm() > 0.0 && trace > 0.0) {  // seed orthogonal to the spread
       const int k = xx >= yy ? (xx >= zz ? 0 : 2) : (yy >= zz ? 1 : 2);
-      return fit_upper(count, sum, oxx, oxy, oxz, oyy, oyz, ozz, Vec3::Unit(k), iterations);
+      // one retry: when the axis fails too (overflow or underflow at absurd scales) stop, no endless recursion
+      if (seed != Vec3::Unit(k)) return refit_from_axis(count, sum, oxx, oxy, oxz, oyy, oyz, ozz, k, iterations);
     }
     return f;  // all points equal
   }
@@ -581,6 +586,13 @@ LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, d
   const double cz = xz * dx + yz * dy + zz * dz;
   f.rms = std::sqrt(std::max(0.0, trace - (dx * cx + dy * cy + dz * cz)));
   return f;
+}
+
+// The rare retry of fit_upper out of line, so that the hot fit_upper stays inlinable.
+__attribute__((noinline, cold)) LineLeastSquares refit_from_axis(int count, const Vec3& sum, double oxx, double oxy,
+                                                                 double oxz, double oyy, double oyz, double ozz,
+                                                                 int axis, int iterations) {
+  return fit_upper(count, sum, oxx, oxy, oxz, oyy, oyz, ozz, Vec3::Unit(axis), iterations);
 }
 
 }  // namespace
