@@ -32,6 +32,7 @@ class SegmentGrid {
     while (capacity < 2 * cells) capacity *= 2;
     mask_ = capacity - 1;
     slots_.assign(capacity, Slot{});
+    slot_seen_.assign(capacity, 0);
     ids_.reserve(entries_.size());
     for (size_t i = 0; i < entries_.size();) {
       size_t j = i;
@@ -44,9 +45,10 @@ class SegmentGrid {
   }
 
   // Calls visit(id) for every bucketed segment with a sample in a cell next to a sample of `query`
-  // (an id may be visited more than once).
+  // (an id may be visited more than once; each cell is visited once per query).
   template <typename Visit>
-  void for_each_near(const Segment& query, Visit&& visit) const {
+  void for_each_near(const Segment& query, Visit&& visit) {
+    ++query_stamp_;
     for_each_sample_cell(query, [&](std::int64_t x, std::int64_t y, std::int64_t z) {
       for (int dx = -1; dx <= 1; ++dx)
         for (int dy = -1; dy <= 1; ++dy)
@@ -54,6 +56,8 @@ class SegmentGrid {
             const std::int64_t k = pack(x + dx, y + dy, z + dz);
             for (size_t h = hash(k) & mask_; slots_[h].end != 0; h = (h + 1) & mask_) {
               if (slots_[h].key != k) continue;
+              if (slot_seen_[h] == query_stamp_) break;
+              slot_seen_[h] = query_stamp_;
               for (int e = slots_[h].begin; e < slots_[h].end; ++e) visit(ids_[e]);
               break;
             }
@@ -104,6 +108,8 @@ class SegmentGrid {
   std::vector<std::pair<std::int64_t, int>> entries_;
   std::vector<int> ids_;
   std::vector<Slot> slots_;
+  std::vector<std::uint32_t> slot_seen_;  // query stamp of the last query that visited the slot
+  std::uint32_t query_stamp_ = 0;
   size_t mask_ = 0;
 };
 
@@ -121,7 +127,18 @@ void match_lines(const std::vector<LineFeature>& lines_a, const std::vector<Line
   for (const auto& l : lines_a)
     if (l.segment.a.allFinite() && l.segment.b.allFinite() && l.line.d.allFinite()) usable_a.push_back(&l);
   if (usable_a.empty()) return;
-  const SegmentGrid grid(usable_a, opt.max_distance);
+  SegmentGrid grid(usable_a, opt.max_distance);
+  // Per line of a: bounding box of its segment (a box gap above max_distance rules the pair out before the exact
+  // distance) and the norm of its normal.
+  std::vector<Vec3> box_lo(usable_a.size()), box_hi(usable_a.size());
+  std::vector<double> normal_norm(usable_a.size());
+  for (size_t i = 0; i < usable_a.size(); ++i) {
+    const Segment& s = usable_a[i]->segment;
+    box_lo[i] = s.a.cwiseMin(s.b);
+    box_hi[i] = s.a.cwiseMax(s.b);
+    normal_norm[i] = usable_a[i]->normal.norm();
+  }
+  const double box_gap = opt.max_distance * (1.0 + 1e-9) + 1e-9;
   const double max_cos_lines = std::cos(deg2rad(opt.min_line_angle_deg));
   const double min_cos_normals = std::cos(deg2rad(opt.max_normal_angle_deg));
 
@@ -134,6 +151,8 @@ void match_lines(const std::vector<LineFeature>& lines_a, const std::vector<Line
     const Vec3 db = T.R * lb.line.d;
     const bool nb_known = lb.normal.squaredNorm() > 0.25;
     const Vec3 nb = T.R * lb.normal;
+    const double nb_norm = nb.norm();
+    const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
     partners.clear();
     grid.for_each_near(sb, [&](int ia) {
       if (last_seen[ia] == ib) return;
@@ -141,8 +160,9 @@ void match_lines(const std::vector<LineFeature>& lines_a, const std::vector<Line
       const LineFeature& la = *usable_a[ia];
       if (std::abs(la.line.d.dot(db)) > max_cos_lines) return;
       if (nb_known && la.normal.squaredNorm() > 0.25 &&
-          std::abs(la.normal.dot(nb)) / (la.normal.norm() * nb.norm()) < min_cos_normals)
+          std::abs(la.normal.dot(nb)) / (normal_norm[ia] * nb_norm) < min_cos_normals)
         return;
+      if ((box_lo[ia] - sb_hi).maxCoeff() > box_gap || (sb_lo - box_hi[ia]).maxCoeff() > box_gap) return;
       const double dist = segment_distance(la.segment, sb);
       if (dist <= opt.max_distance) partners.push_back({&la, &lb, dist});
     });
