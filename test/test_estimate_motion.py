@@ -355,12 +355,13 @@ def test_releases_the_gil():
 
     T_true, args, _ = make_scene(18, n_true=1500)
     options = {**OPTIONS, "solver": "7L", "confidence": 1.0, "max_iterations": 1500, "min_iterations": 1500}
-    window = {}
+    windows = []
 
-    def work():
-        window["enter"] = time.perf_counter()
-        call(args, options=options)
-        window["exit"] = time.perf_counter()
+    def work():  # calls back to back until 50 ms were spent inside estimate_motion (fast machines need several)
+        while sum(b - a for a, b in windows) < 0.05 and len(windows) < 200:
+            enter = time.perf_counter()
+            call(args, options=options)
+            windows.append((enter, time.perf_counter()))
 
     worker = threading.Thread(target=work)
     samples = []
@@ -368,9 +369,10 @@ def test_releases_the_gil():
     while worker.is_alive():
         samples.append(time.perf_counter())
     worker.join()
-    inside = [s for s in samples if window["enter"] + 0.005 < s < window["exit"] - 0.005]
-    assert window["exit"] - window["enter"] > 0.02
-    assert len(inside) > 100  # the main thread ran Python while estimate_motion worked
+    samples = np.asarray(samples)
+    inside = sum(int(np.count_nonzero((samples > a + 0.001) & (samples < b - 0.001))) for a, b in windows)
+    assert sum(b - a for a, b in windows) >= 0.05
+    assert inside > 100  # the main thread ran Python while estimate_motion worked
 
 
 def test_covariance_matches_the_scatter_of_the_estimates():
