@@ -131,6 +131,9 @@ _ENTRIES: list[ConfigEntry] = [
                 "prediction is rejected", 0.01, 180.0),
     ConfigEntry("registration.constant_velocity", bool, True, "predict each motion from the previous one "
                 "(scaled by the stamp interval); false = identity", None, None),
+    ConfigEntry("registration.max_axis_support", float, 0.97, "the estimate is degenerate (the prediction is "
+                "held) when pushing it 20 inlier thresholds along one axis keeps this share of its inlier weight: "
+                "that motion is unobservable, e.g. along an endless corridor (1 = off)", 0.0, 1.0),
     ConfigEntry("registration.max_prediction_gap", float, 1.0, "a stamp gap longer than this (s) drops the "
                 "velocity: the motion is found afresh as after a reset instead of extrapolated", 1e-3, 3600.0),
     ConfigEntry("registration.guess_preference", float, 0.0, "a RANSAC estimate replaces the refined guess "

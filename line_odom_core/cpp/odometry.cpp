@@ -222,6 +222,12 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     failure.clear();
   }
 
+  if (have && !best_stats.degenerate && reg.max_axis_support < 1.0 &&
+      axis_support(corr, best, config_.ransac.inlier_threshold, ropt.min_line_sine) >= reg.max_axis_support) {
+    best_stats.degenerate = true;  // a motion the intersections do not observe (refine.hpp: axis_support)
+    failure = "unobservable motion (a push along one axis keeps the inliers)";
+  }
+
   PassOutcome out;
   out.best = best;
   out.stats = best_stats;
@@ -405,6 +411,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);
   visit("registration.constant_velocity", c.registration.constant_velocity);
+  visit("registration.max_axis_support", c.registration.max_axis_support);
   visit("registration.max_prediction_gap", c.registration.max_prediction_gap);
   visit("registration.guess_preference", c.registration.guess_preference);
   visit("registration.coarse_downsample", c.registration.coarse_downsample);

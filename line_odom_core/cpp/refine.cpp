@@ -152,6 +152,37 @@ bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_thr
   return a.n.dot(b_moved.n) > std::cos(angle_threshold) && std::abs(b_moved.delta - a.delta) < distance_threshold;
 }
 
+double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine) {
+  const size_t n = std::min(data.lines_a.size(), data.lines_b.size());
+  std::vector<size_t> inliers;
+  double total = 0.0, r2 = 0.0;
+  for (size_t j = 0; j < n; ++j) {
+    const double w = data.weights.empty() ? 1.0 : data.weights[j];
+    if (w > 0.0 && line_pair_is_inlier(data.lines_a[j], data.lines_b[j].moved(T), threshold, min_sine)) {
+      inliers.push_back(j);
+      total += w;
+      r2 += data.lines_a[j].closest_point_to_origin().squaredNorm();
+    }
+  }
+  if (inliers.empty() || total <= 0.0) return 0.0;
+  const double push = 20.0 * threshold;
+  const double turn = push / std::max(1.0, std::sqrt(r2 / static_cast<double>(inliers.size())));
+  double worst = 0.0;
+  for (int axis = 0; axis < 6; ++axis) {
+    for (const double sign : {-1.0, 1.0}) {
+      Vec6 xi = Vec6::Zero();
+      xi[axis] = sign * (axis < 3 ? push : turn);
+      const RigidTransform P = se3_exp(xi) * T;
+      double kept = 0.0;
+      for (const size_t j : inliers)
+        if (line_pair_is_inlier(data.lines_a[j], data.lines_b[j].moved(P), threshold, min_sine))
+          kept += data.weights.empty() ? 1.0 : data.weights[j];
+      worst = std::max(worst, kept / total);
+    }
+  }
+  return worst;
+}
+
 bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
                    RefineResult* result) {
   RefineResult res;

@@ -44,6 +44,12 @@ bool line_pair_is_inlier(const PluckerLine& a, const PluckerLine& b_moved, doubl
                          double* distance = nullptr);
 bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_threshold, double distance_threshold);
 
+// Largest share of the inlier weight at T that survives a push along a single axis of xi: the translations by
+// 20 thresholds, the rotations by the angle that moves the inlier lines as far. Near 1: the intersections do
+// not observe that motion (pairs on planes parallel to it, e.g. an endless corridor), however well-conditioned
+// the coincidental pairs make J^T W J look.
+double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine);
+
 // Gauss-Newton / IRLS from T0 over the pairs that are inliers at each iterate. Returns false (result->T = T0)
 // when fewer residuals than unknowns remain or a step is not finite; never writes NaN.
 bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
