@@ -9,6 +9,7 @@
 #include "solvers/solve_1l2p.hpp"
 #include "solvers/solve_3l1p.hpp"
 #include "solvers/solve_7l.hpp"
+#include "solvers/solver_input.hpp"
 
 namespace line_odom {
 namespace {
@@ -23,26 +24,9 @@ constexpr int kPretestMinPairs = 400;        // pre-test only above this many li
 constexpr int kBoundCheckStride = 32;
 constexpr std::uint64_t kShuffleSeedSalt = 0x5bd1e9955bd1e995ULL;
 
-bool finite3(const Vec3& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
-
-// Unit d and m orthogonal to d; false for a zero or non-finite line.
-bool normalize_line(const PluckerLine& in, PluckerLine* out) {
-  if (!finite3(in.d) || !finite3(in.m)) return false;
-  const double s = in.d.norm();
-  if (!(s > 1e-12)) return false;
-  out->d = in.d / s;
-  out->m = in.m / s;
-  out->m -= out->d.dot(out->m) * out->d;
-  return true;
-}
-
-bool normalize_plane(const Plane& in, Plane* out) {
-  if (!finite3(in.n) || !std::isfinite(in.delta)) return false;
-  const double s = in.n.norm();
-  if (!(s > 1e-12)) return false;
-  *out = {in.n / s, in.delta / s};
-  return true;
-}
+using solver_input::normalize_line;
+using solver_input::normalize_plane;
+using solver_input::is_finite;
 
 // Points where two lines come closest (the closest points to the origin for near-parallel lines).
 void closest_points(const PluckerLine& l1, const PluckerLine& l2, Vec3* p1, Vec3* p2) {
@@ -86,7 +70,7 @@ void prepare(const Correspondences& in, const RigidTransform& init, std::uint64_
     if (has_weights) ok = ok && std::isfinite(in.weights[i]) && in.weights[i] >= 0.0;
     if (has_segments) {
       const Segment &sa = in.segments_a[i], &sb = in.segments_b[i];
-      ok = ok && finite3(sa.a) && finite3(sa.b) && finite3(sb.a) && finite3(sb.b) && sa.length() > 1e-9 &&
+      ok = ok && is_finite(sa.a) && is_finite(sa.b) && is_finite(sb.a) && is_finite(sb.b) && sa.length() > 1e-9 &&
            sb.length() > 1e-9;
     }
     if (ok)
