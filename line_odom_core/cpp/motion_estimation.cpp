@@ -374,12 +374,7 @@ bool estimate_motion(const Correspondences& data, const RigidTransform& init, co
   RefineResult refined;
   const bool refined_ok = refine_motion(prepared.work, best, refine_options, &refined);
   const RigidTransform final_T = refined_ok ? refined.T : best;
-  stats.inliers = refined.line_inliers;
-  stats.inlier_weight = refined.line_inlier_weight;
-  stats.plane_inliers = refined.plane_inliers;
-  stats.residual_rms = refined.residual_rms;
-  stats.condition = refined.condition;
-  stats.degenerate = refined.degenerate;
+  copy_refinement_stats(refined, &stats);
   if (refined_ok) stats.covariance = refined.covariance;
 
   const Correspondences& w = prepared.work;

@@ -207,12 +207,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
       best_stats = ms;
     } else if (score_refined > score_prior) {
       best = refined.T;
-      best_stats.inliers = refined.line_inliers;
-      best_stats.inlier_weight = refined.line_inlier_weight;
-      best_stats.plane_inliers = refined.plane_inliers;
-      best_stats.residual_rms = refined.residual_rms;
+      copy_refinement_stats(refined, &best_stats);
       best_stats.covariance = refined.covariance;
-      best_stats.degenerate = refined.degenerate;
       if (!have) best_stats.best_solver = -2;
     } else {
       continue;

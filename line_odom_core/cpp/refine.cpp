@@ -152,6 +152,15 @@ bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_thr
   return a.n.dot(b_moved.n) > std::cos(angle_threshold) && std::abs(b_moved.delta - a.delta) < distance_threshold;
 }
 
+void copy_refinement_stats(const RefineResult& refined, MotionStats* stats) {
+  stats->inliers = refined.line_inliers;
+  stats->inlier_weight = refined.line_inlier_weight;
+  stats->plane_inliers = refined.plane_inliers;
+  stats->residual_rms = refined.residual_rms;
+  stats->condition = refined.condition;
+  stats->degenerate = refined.degenerate;
+}
+
 double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine) {
   const size_t n = std::min(data.lines_a.size(), data.lines_b.size());
   std::vector<size_t> inliers;

@@ -44,6 +44,10 @@ bool line_pair_is_inlier(const PluckerLine& a, const PluckerLine& b_moved, doubl
                          double* distance = nullptr);
 bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_threshold, double distance_threshold);
 
+// The refinement's support and quality into motion statistics (inliers, weights, rms, condition, degenerate;
+// not the covariance, which callers take only from a successful refinement).
+void copy_refinement_stats(const RefineResult& refined, MotionStats* stats);
+
 // Largest share of the inlier weight at T that survives a push along a single axis of xi: the translations by
 // 20 thresholds, the rotations by the angle that moves the inlier lines as far. Near 1: the intersections do
 // not observe that motion (pairs on planes parallel to it, e.g. an endless corridor), however well-conditioned
