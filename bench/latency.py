@@ -34,6 +34,27 @@ def kitti_frames(seqs):
         yield seq, [(np.ascontiguousarray(data.points(i)[:, :3]), float(data.times[i])) for i in range(len(data))]
 
 
+def time_frames(register, kiss_odom, kiss_points, inputs, stage_ms, call_ms, kiss_ms):
+    """Times register(item) and, with kiss_odom, KISS-ICP on kiss_points(item) for every item; the first frame of
+    the run is left out (nothing to register against)."""
+    for k, item in enumerate(inputs):
+        t0 = time.perf_counter()
+        result = register(item)
+        call = (time.perf_counter() - t0) * 1e3
+        if kiss_odom is not None:
+            pts = kiss_points(item)
+            t0 = time.perf_counter()
+            kiss_odom.register_frame(pts, np.zeros(len(pts)))
+            kiss_call = (time.perf_counter() - t0) * 1e3
+        if k == 0:
+            continue
+        call_ms.append(call)
+        for s in STAGES:
+            stage_ms[s].append(result.stats["ms"][s])
+        if kiss_odom is not None:
+            kiss_ms.append(kiss_call)
+
+
 def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat):
     stage_ms = {s: [] for s in STAGES}
     call_ms, kiss_ms = [], []
@@ -41,50 +62,27 @@ def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat):
         for _seq, frames in frames_by_seq:
             odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": level}))
             kiss_odom = kiss_odometry(100.0, kiss_threads) if kiss else None
-            for k, (xyz, stamp) in enumerate(frames):
-                t0 = time.perf_counter()
-                result = odom.register_points(xyz, stamp)
-                call = (time.perf_counter() - t0) * 1e3
-                if kiss_odom is not None:
-                    pts = odom.downsampled_points(xyz) if level > 1 else xyz.astype(np.float64)
-                    t0 = time.perf_counter()
-                    kiss_odom.register_frame(pts, np.zeros(len(pts)))
-                    kiss_call = (time.perf_counter() - t0) * 1e3
-                if k == 0:
-                    continue
-                call_ms.append(call)
-                for s in STAGES:
-                    stage_ms[s].append(result.stats["ms"][s])
-                if kiss_odom is not None:
-                    kiss_ms.append(kiss_call)
+            time_frames(lambda f: odom.register_points(f[0], f[1]), kiss_odom,
+                        lambda f: odom.downsampled_points(f[0]) if level > 1 else f[0].astype(np.float64),
+                        frames, stage_ms, call_ms, kiss_ms)
     return stage_ms, call_ms, kiss_ms
 
 
 def time_depth(level, frames, kiss, kiss_threads, repeat):
     data = tum_sequence(frames)
-    depths = [data.depth(i) for i in range(len(data))]
+    depths = [(data.depth(i), float(data.stamps[i])) for i in range(len(data))]
     stage_ms = {s: [] for s in STAGES}
     call_ms, kiss_ms = [], []
     for _ in range(repeat):
         odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": level}))
         kiss_odom = kiss_odometry(5.0, kiss_threads) if kiss else None
-        for k, depth in enumerate(depths):
-            t0 = time.perf_counter()
-            result = odom.register_depth(depth, data.K, float(data.stamps[k]))
-            call = (time.perf_counter() - t0) * 1e3
-            if kiss_odom is not None:
-                pts = depth_points(depth, data.K, level)
-                pts = pts[(pts[:, 2] >= odom.config["sensor.min_range"]) & (pts[:, 2] <= odom.config["sensor.max_range"])]
-                t0 = time.perf_counter()
-                kiss_odom.register_frame(pts, np.zeros(len(pts)))
-                kiss_call = (time.perf_counter() - t0) * 1e3
-            if k == 0:
-                continue
-            call_ms.append(call)
-            for s in STAGES:
-                stage_ms[s].append(result.stats["ms"][s])
-            if kiss_odom is not None:
-                kiss_ms.append(kiss_call)
+
+        def kiss_points(f):
+            pts = depth_points(f[0], data.K, level)
+            return pts[(pts[:, 2] >= odom.config["sensor.min_range"]) & (pts[:, 2] <= odom.config["sensor.max_range"])]
+
+        time_frames(lambda f: odom.register_depth(f[0], data.K, f[1]), kiss_odom, kiss_points, depths,
+                    stage_ms, call_ms, kiss_ms)
     return stage_ms, call_ms, kiss_ms
 
 
