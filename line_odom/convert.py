@@ -90,12 +90,16 @@ def ns_to_stamp(ns: int):
 
 def sec_to_stamp(seconds: float):
     """seconds -> builtin_interfaces/Time (rounded to the nanosecond)."""
-    from builtin_interfaces.msg import Time
-
     if not math.isfinite(seconds) or seconds < 0:
         raise ValueError(f"stamp: expected finite seconds >= 0, got {seconds}")
-    ns = int(round(seconds * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    return ns_to_stamp(round(seconds * 1e9))
+
+
+def set_header(msg, frame_id: str, stamp) -> None:
+    """header.frame_id, and header.stamp from seconds or a builtin_interfaces/Time (None: left unset)."""
+    msg.header.frame_id = frame_id
+    if stamp is not None:
+        msg.header.stamp = sec_to_stamp(stamp) if isinstance(stamp, (int, float)) else stamp
 
 
 def _buffer(data, message_type: str) -> np.ndarray:
@@ -318,9 +322,7 @@ def pointcloud2_from_array(points: np.ndarray, *, frame_id: str = "", stamp=None
             bigendian = big
         fields.append(PointField(name=name, offset=int(offset), datatype=code, count=count))
     msg = PointCloud2()
-    msg.header.frame_id = frame_id
-    if stamp is not None:
-        msg.header.stamp = sec_to_stamp(stamp) if isinstance(stamp, (int, float)) else stamp
+    set_header(msg, frame_id, stamp)
     msg.height, msg.width = int(points.shape[0]), int(points.shape[1])
     msg.fields = fields
     msg.is_bigendian = bool(bigendian)
@@ -417,9 +419,7 @@ def depth_to_image(depth_m: np.ndarray, *, encoding: str = "16UC1", frame_id: st
     else:
         raise ValueError(f"encoding: expected 16UC1, mono16 or 32FC1, got {encoding!r}")
     msg = Image()
-    msg.header.frame_id = frame_id
-    if stamp is not None:
-        msg.header.stamp = sec_to_stamp(stamp) if isinstance(stamp, (int, float)) else stamp
+    set_header(msg, frame_id, stamp)
     msg.height, msg.width = int(pixels.shape[0]), int(pixels.shape[1])
     msg.encoding = encoding
     msg.is_bigendian = sys.byteorder == "big"
@@ -461,9 +461,7 @@ def camera_info_from_K(K: np.ndarray, width: int, height: int, *, frame_id: str 
     if K.shape != (3, 3):
         raise ValueError(f"K: expected shape (3, 3), got {K.shape}")
     msg = CameraInfo()
-    msg.header.frame_id = frame_id
-    if stamp is not None:
-        msg.header.stamp = sec_to_stamp(stamp) if isinstance(stamp, (int, float)) else stamp
+    set_header(msg, frame_id, stamp)
     msg.width, msg.height = int(width), int(height)
     msg.distortion_model = "plumb_bob"
     msg.d = [0.0] * 5
