@@ -141,7 +141,8 @@ _ENTRIES: list[ConfigEntry] = [
                 0.0, 1.0),
     ConfigEntry("registration.coarse_downsample", int, 6, "while there is no velocity (first motion after start "
                 "or reset), register the scans downsampled by this step first and start from that estimate "
-                "(0 or <= downsample: off)", 0, 64),
+                "(0 or = downsample: off; finer than downsample helps where the sparse scans barely observe the "
+                "motion, e.g. a highway at 1/64)", 0, 64),
     ConfigEntry("registration.covariance_scale", float, 1.0, "multiplies the refinement's covariance before it is "
                 "reported and fused (the least-squares covariance ignores wrong candidate pairs)", 1e-6, 1e9),
     ConfigEntry("registration.motion_prior_translation_sigma", float, 0.0, "1-sigma deviation (m per frame) from "

@@ -1,8 +1,11 @@
 #include "candidates.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
+#include <memory>
 #include <utility>
 
 namespace line_odom {
@@ -13,104 +16,96 @@ constexpr double kPi = 3.14159265358979323846;
 
 double deg2rad(double deg) { return deg * kPi / 180.0; }
 
-// Segments are bucketed in a sparse voxel grid by points sampled along them. With samples every
-// cell/3 along both segments, two segments closer than `max_distance` = 2/3 cell have samples in
-// neighbouring cells, so a 27-cell lookup around each sample of the query finds every partner. Cells are
-// found through an open-addressing hash of cell keys to runs of a sorted (key, id) array.
+// Segments are bucketed in a dense voxel grid over their bounding box by points sampled along them. With
+// samples every cell/3 along both segments, two segments closer than `max_distance` = 2/3 cell have samples
+// in neighbouring cells, so a 27-cell lookup around each sample of the query finds every partner. Cells are a
+// CSR array: a lookup is an index, not a hash probe.
 class SegmentGrid {
  public:
   SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance)
-      : cell_(1.5 * std::max(max_distance, 1e-3)), step_(cell_ / 3.0) {
-    for (int id = 0; id < static_cast<int>(lines.size()); ++id)
-      for_each_sample_cell(lines[id]->segment,
-                           [&](std::int64_t x, std::int64_t y, std::int64_t z) { entries_.emplace_back(pack(x, y, z), id); });
-    std::sort(entries_.begin(), entries_.end());
-    entries_.erase(std::unique(entries_.begin(), entries_.end()), entries_.end());
-    size_t cells = 0;
-    for (size_t i = 0; i < entries_.size(); ++i) cells += (i == 0 || entries_[i].first != entries_[i - 1].first);
-    size_t capacity = 16;
-    while (capacity < 2 * cells) capacity *= 2;
-    mask_ = capacity - 1;
-    slots_.assign(capacity, Slot{});
-    slot_seen_.assign(capacity, 0);
-    ids_.reserve(entries_.size());
-    for (size_t i = 0; i < entries_.size();) {
-      size_t j = i;
-      while (j < entries_.size() && entries_[j].first == entries_[i].first) ids_.push_back(entries_[j++].second);
-      size_t h = hash(entries_[i].first) & mask_;
-      while (slots_[h].end != 0) h = (h + 1) & mask_;
-      slots_[h] = {entries_[i].first, static_cast<int>(i), static_cast<int>(j)};
-      i = j;
+      : cell_(1.5 * std::max(max_distance, 1e-3)) {
+    Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+    for (const LineFeature* l : lines) {
+      lo = lo.cwiseMin(l->segment.a).cwiseMin(l->segment.b);
+      hi = hi.cwiseMax(l->segment.a).cwiseMax(l->segment.b);
     }
+    if (lines.empty() || !lo.allFinite() || !hi.allFinite()) return;
+    const Vec3 extent = hi - lo;
+    // Coarser cells keep any grid (e.g. a frame with a far-away outlier) within a fixed size; correctness only
+    // needs cell >= 1.5 max_distance.
+    auto cells = [&]() { return (extent.array() / cell_ + 3.0).prod(); };
+    while (cells() > kMaxCells) cell_ *= 2.0;
+    step_ = cell_ / 3.0;
+    origin_ = lo - Vec3::Constant(cell_);
+    for (int k = 0; k < 3; ++k) size_[k] = static_cast<int>(extent[k] / cell_) + 3;
+
+    std::vector<std::pair<int, int>> entries;  // (cell, line id)
+    for (int id = 0; id < static_cast<int>(lines.size()); ++id)
+      for_each_sample_cell(lines[id]->segment, [&](int cell) { entries.emplace_back(cell, id); });
+    begin_.assign(static_cast<size_t>(size_[0]) * size_[1] * size_[2] + 1, 0);
+    for (const auto& e : entries) ++begin_[e.first + 1];
+    for (size_t c = 1; c < begin_.size(); ++c) begin_[c] += begin_[c - 1];
+    ids_.resize(entries.size());
+    std::vector<int> fill(begin_.begin(), begin_.end() - 1);
+    for (const auto& e : entries) ids_[fill[e.first]++] = e.second;
+    seen_.assign(begin_.size() - 1, 0);
   }
 
   // Calls visit(id) for every bucketed segment with a sample in a cell next to a sample of `query`
   // (an id may be visited more than once; each cell is visited once per query).
   template <typename Visit>
   void for_each_near(const Segment& query, Visit&& visit) {
+    if (seen_.empty()) return;
     ++query_stamp_;
-    for_each_sample_cell(query, [&](std::int64_t x, std::int64_t y, std::int64_t z) {
-      for (int dx = -1; dx <= 1; ++dx)
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dz = -1; dz <= 1; ++dz) {
-            const std::int64_t k = pack(x + dx, y + dy, z + dz);
-            for (size_t h = hash(k) & mask_; slots_[h].end != 0; h = (h + 1) & mask_) {
-              if (slots_[h].key != k) continue;
-              if (slot_seen_[h] == query_stamp_) break;
-              slot_seen_[h] = query_stamp_;
-              for (int e = slots_[h].begin; e < slots_[h].end; ++e) visit(ids_[e]);
-              break;
-            }
+    const int sx = size_[1] * size_[2], sy = size_[2];
+    for_each_sample_cell(query, [&](int cell) {
+      const int cx = cell / sx, cy = (cell / sy) % size_[1], cz = cell % sy;
+      for (int x = std::max(cx - 1, 0); x <= std::min(cx + 1, size_[0] - 1); ++x)
+        for (int y = std::max(cy - 1, 0); y <= std::min(cy + 1, size_[1] - 1); ++y)
+          for (int z = std::max(cz - 1, 0); z <= std::min(cz + 1, size_[2] - 1); ++z) {
+            const int c = x * sx + y * sy + z;
+            if (seen_[c] == query_stamp_) continue;
+            seen_[c] = query_stamp_;
+            for (int e = begin_[c]; e < begin_[c + 1]; ++e) visit(ids_[e]);
           }
     });
   }
 
  private:
-  struct Slot {
-    std::int64_t key = 0;
-    int begin = 0, end = 0;  // end == 0: empty slot
-  };
-
-  // Cell coordinates wrap at 2^21 per axis (thousands of km at any sensible cell size); aliased cells only add
-  // visits that the distance test rejects.
-  static std::int64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
-    constexpr std::int64_t kOffset = 1 << 20, kMask = (1 << 21) - 1;
-    return ((x + kOffset) & kMask) | (((y + kOffset) & kMask) << 21) | (((z + kOffset) & kMask) << 42);
-  }
-  static size_t hash(std::int64_t k) {
-    std::uint64_t z = static_cast<std::uint64_t>(k) * 0x9e3779b97f4a7c15ULL;
-    return static_cast<size_t>(z ^ (z >> 29));
-  }
-
-  // Calls f(x, y, z) for each cell holding a sample of s (consecutive repeats skipped).
+  // Calls f(cell) for each in-grid cell holding a sample of s (consecutive repeats skipped: a straight segment
+  // crosses a cell in one run of samples). A sample up to one cell outside the grid is moved to the nearest
+  // cell, whose neighbourhood covers its in-grid neighbours; samples farther out have none.
   template <typename F>
   void for_each_sample_cell(const Segment& s, F&& f) const {
     const double len = s.length();
     // A segment longer than kMaxSamples steps (kilometres at LiDAR settings: only corrupted input, e.g. absurd
-    // intrinsics) is not bucketed, so one bad frame cannot allocate without bound.
+    // intrinsics) is not bucketed, so one bad frame cannot cost without bound.
     if (!std::isfinite(len) || len > kMaxSamples * step_) return;
     const int n = 1 + static_cast<int>(std::ceil(len / step_));
-    std::int64_t previous = 0;
+    int previous = -1;
     for (int i = 0; i <= n; ++i) {
       const Vec3 p = s.a + (s.b - s.a) * (static_cast<double>(i) / n);
-      const std::int64_t cx = static_cast<std::int64_t>(std::floor(p.x() / cell_));
-      const std::int64_t cy = static_cast<std::int64_t>(std::floor(p.y() / cell_));
-      const std::int64_t cz = static_cast<std::int64_t>(std::floor(p.z() / cell_));
-      const std::int64_t k = pack(cx, cy, cz);
-      if (i > 0 && k == previous) continue;
-      previous = k;
-      f(cx, cy, cz);
+      int cell = 0;
+      bool inside = true;
+      for (int k = 0; k < 3 && inside; ++k) {
+        const double c = std::floor((p[k] - origin_[k]) / cell_);
+        inside = c >= -1.0 && c <= size_[k];
+        cell = cell * size_[k] + std::clamp(static_cast<int>(c), 0, size_[k] - 1);
+      }
+      if (!inside || cell == previous) continue;
+      previous = cell;
+      f(cell);
     }
   }
 
   static constexpr double kMaxSamples = 4096.0;
-  double cell_, step_;
-  std::vector<std::pair<std::int64_t, int>> entries_;
-  std::vector<int> ids_;
-  std::vector<Slot> slots_;
-  std::vector<std::uint32_t> slot_seen_;  // query stamp of the last query that visited the slot
+  static constexpr double kMaxCells = 1 << 21;
+  double cell_, step_ = 1.0;
+  Vec3 origin_ = Vec3::Zero();
+  std::array<int, 3> size_{};
+  std::vector<int> begin_, ids_;
+  std::vector<std::uint32_t> seen_;  // query stamp of the last query that visited the cell
   std::uint32_t query_stamp_ = 0;
-  size_t mask_ = 0;
 };
 
 struct LinePair {
@@ -119,25 +114,59 @@ struct LinePair {
   double distance;
 };
 
-// Pairs of lines_a (frame a) with lines_b (frame b, moved into a by T) that pass the filters.
-void match_lines(const std::vector<LineFeature>& lines_a, const std::vector<LineFeature>& lines_b,
-                 const RigidTransform& T, const CandidateOptions& opt, std::vector<LinePair>* out) {
-  std::vector<const LineFeature*> usable_a;
-  usable_a.reserve(lines_a.size());
-  for (const auto& l : lines_a)
-    if (l.segment.a.allFinite() && l.segment.b.allFinite() && l.line.d.allFinite()) usable_a.push_back(&l);
-  if (usable_a.empty()) return;
-  SegmentGrid grid(usable_a, opt.max_distance);
-  // Per line of a: bounding box of its segment (a box gap above max_distance rules the pair out before the exact
-  // distance) and the norm of its normal.
-  std::vector<Vec3> box_lo(usable_a.size()), box_hi(usable_a.size());
-  std::vector<double> normal_norm(usable_a.size());
-  for (size_t i = 0; i < usable_a.size(); ++i) {
-    const Segment& s = usable_a[i]->segment;
-    box_lo[i] = s.a.cwiseMin(s.b);
-    box_hi[i] = s.a.cwiseMax(s.b);
-    normal_norm[i] = usable_a[i]->normal.norm();
+// The usable lines of one kind (H or V) of frame a with their grid, segment bounding boxes (a box gap above the
+// pass distance rules a pair out before the exact distance) and normal norms.
+struct IndexedLines {
+  std::vector<const LineFeature*> lines;
+  std::vector<Vec3> box_lo, box_hi;
+  std::vector<double> normal_norm;
+  SegmentGrid grid;
+
+  IndexedLines(const std::vector<LineFeature>& all, double max_distance)
+      : lines(usable(all)), grid(lines, max_distance) {
+    box_lo.resize(lines.size());
+    box_hi.resize(lines.size());
+    normal_norm.resize(lines.size());
+    for (size_t i = 0; i < lines.size(); ++i) {
+      const Segment& s = lines[i]->segment;
+      box_lo[i] = s.a.cwiseMin(s.b);
+      box_hi[i] = s.a.cwiseMax(s.b);
+      normal_norm[i] = lines[i]->normal.norm();
+    }
   }
+
+  static std::vector<const LineFeature*> usable(const std::vector<LineFeature>& all) {
+    std::vector<const LineFeature*> out;
+    out.reserve(all.size());
+    for (const auto& l : all)
+      if (l.segment.a.allFinite() && l.segment.b.allFinite() && l.line.d.allFinite()) out.push_back(&l);
+    return out;
+  }
+};
+
+}  // namespace
+
+struct CandidateIndex::Lines {
+  IndexedLines h, v;
+};
+
+CandidateIndex::CandidateIndex(const ScanFeatures& a, double max_distance)
+    : lines_(std::make_unique<Lines>(Lines{IndexedLines(a.h_lines, max_distance), IndexedLines(a.v_lines, max_distance)})),
+      max_distance_(max_distance) {}
+
+CandidateIndex::~CandidateIndex() = default;
+
+namespace {
+
+// Pairs of lines of frame a (indexed) with lines_b (frame b, moved into a by T) that pass the filters.
+void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b, const RigidTransform& T,
+                 const CandidateOptions& opt, std::vector<LinePair>* out) {
+  const std::vector<const LineFeature*>& usable_a = indexed.lines;
+  if (usable_a.empty()) return;
+  const std::vector<Vec3>& box_lo = indexed.box_lo;
+  const std::vector<Vec3>& box_hi = indexed.box_hi;
+  const std::vector<double>& normal_norm = indexed.normal_norm;
+  SegmentGrid& grid = indexed.grid;
   const double box_gap = opt.max_distance * (1.0 + 1e-9) + 1e-9;
   const double max_cos_lines = std::cos(deg2rad(opt.min_line_angle_deg));
   const double min_cos_normals = std::cos(deg2rad(opt.max_normal_angle_deg));
@@ -211,11 +240,17 @@ double segment_distance(const Segment& s1, const Segment& s2) {
 }
 
 void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
-                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats) {
+                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats,
+                      CandidateIndex* index) {
   *out = Correspondences{};
+  std::unique_ptr<CandidateIndex> own_index;
+  if (!index || index->max_distance() < options.max_distance) {
+    own_index = std::make_unique<CandidateIndex>(a, options.max_distance);
+    index = own_index.get();
+  }
   std::vector<LinePair> pairs;
-  match_lines(a.h_lines, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
-  match_lines(a.v_lines, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
+  match_lines(index->lines_->h, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
+  match_lines(index->lines_->v, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
 
   // Cluster of the pair: the previous frame's normal cluster (paper §6.3), else the current frame's.
   std::array<int, 4> counts{};

@@ -339,7 +339,7 @@ RefineOptions refine_options_from(const MotionOptions& o) {
 }  // namespace
 
 bool estimate_motion(const Correspondences& data, const RigidTransform& init, const MotionOptions& options,
-                     RigidTransform* T_ab, MotionStats* stats_out) {
+                     RigidTransform* T_ab, MotionStats* stats_out, const RigidTransform* incumbent) {
   MotionStats stats;
   const RigidTransform start = init.is_finite() ? init : RigidTransform::identity();
   if (T_ab) *T_ab = start;
@@ -358,10 +358,11 @@ bool estimate_motion(const Correspondences& data, const RigidTransform& init, co
 
   RigidTransform best = start;
   RansacStats rs;
-  const bool found = hybrid_ransac(estimator, ransac_options, &best, &rs);
+  const bool use_incumbent = incumbent && incumbent->is_finite();
+  const bool found = hybrid_ransac(estimator, ransac_options, &best, &rs, use_incumbent ? incumbent : nullptr);
   stats.iterations = rs.iterations;
   stats.models = rs.models;
-  stats.best_solver = rs.best_solver;
+  stats.best_solver = found && rs.best_solver < 0 ? -2 : rs.best_solver;
   for (int s = 0; s < 3; ++s) {
     stats.solver_counts[s] = rs.solver_wins[s];
     stats.solver_iterations[s] = rs.solver_iterations[s];

@@ -51,7 +51,7 @@ struct MotionStats {
   int plane_inliers = 0;
   int iterations = 0;
   std::array<int, 3> solver_counts{};  // hypotheses that won per solver: 7L, 3L1P, 1L2P
-  int best_solver = -1;                // 0 = 7L, 1 = 3L1P, 2 = 1L2P, -1 = none
+  int best_solver = -1;                // 0 = 7L, 1 = 3L1P, 2 = 1L2P, -2 = the incumbent, -1 = none
   Mat6 covariance = Mat6::Identity();  // order (x y z rx ry rz), REP-103; perturbation T = exp(xi) T_hat
   double residual_rms = 0.0;
   bool degenerate = false;             // refinement normal matrix badly conditioned
@@ -70,8 +70,9 @@ struct MotionStats {
 // insufficient or degenerate data returns false, writes T_ab = init and fills stats describing why.
 // Pairs whose lines are closer to parallel than ~3 deg neither count as inliers nor enter the refinement.
 // 7L without segments: each pair gets two 2 m segments centred on the points where the lines come closest
-// under init.
+// under init. An `incumbent` motion (e.g. the refined prediction) is scored before any sample and stays the
+// estimate (best_solver -2) unless a sample beats it.
 bool estimate_motion(const Correspondences& data, const RigidTransform& init, const MotionOptions& options,
-                     RigidTransform* T_ab, MotionStats* stats);
+                     RigidTransform* T_ab, MotionStats* stats, const RigidTransform* incumbent = nullptr);
 
 }  // namespace line_odom

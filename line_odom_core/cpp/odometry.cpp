@@ -165,9 +165,12 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     return deviation.t.norm() <= reg.max_translation &&
            rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
   };
+  stage = Stopwatch();
+  CandidateIndex index(prev, copt.max_distance);  // the passes' distances only shrink
+  st->ms.candidates += stage.ms();
   for (int pass = 0; pass < reg.passes; ++pass) {
     stage = Stopwatch();
-    build_candidates(prev, cur, best, copt, &corr, &cstats);
+    build_candidates(prev, cur, best, copt, &corr, &cstats, &index);
     st->ms.candidates += stage.ms();
     st->candidates = cstats.line_pairs;
     st->plane_candidates = cstats.plane_pairs;
@@ -175,16 +178,16 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     stage = Stopwatch();
     MotionOptions mopt = config_.ransac;
     mopt.seed = mix_seed(config_.seed, static_cast<std::uint64_t>(frames_), static_cast<std::uint64_t>(pass));
-    RigidTransform estimate;
-    MotionStats ms;
-    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms) && sane(estimate) &&
-                    ms.inliers >= reg.min_inliers;
-    st->iterations += ms.iterations;
-    // The guess itself, refined on this pass's candidates, competes with the RANSAC winner: whichever has
-    // the larger weighted inlier count on the same candidates is kept (paper §6.3 inlier counting).
+    // The guess itself, refined on this pass's candidates, competes with the RANSAC samples: it is scored first
+    // and whichever has the larger weighted inlier count on the same candidates is kept (paper §6.3).
     RefineResult refined;
     const bool refined_ok = refine_motion(corr, best, ropt, &refined) && sane(refined.T) && !refined.degenerate &&
                             refined.line_inliers >= reg.min_inliers;
+    RigidTransform estimate;
+    MotionStats ms;
+    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms, refined_ok ? &refined.T : nullptr) &&
+                    sane(estimate) && ms.inliers >= reg.min_inliers;
+    st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
     const double score_prior = have ? score_motion(corr, best, thr) : -1.0;
     const double score_ransac = ok ? score_motion(corr, estimate, thr) : -1.0;
@@ -267,7 +270,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
 
   ScanFeatures coarse_features;
   const int coarse_step = config_.registration.coarse_downsample;
-  if (!have_velocity_ && coarse_step > config_.downsample) {
+  if (!have_velocity_ && coarse_step > 0 && coarse_step != config_.downsample) {
     stage = Stopwatch();
     coarse_features = extract_features(downsample(image, coarse_step), config_.features);
     st.ms.features += stage.ms();
@@ -285,22 +288,26 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     const RegistrationOptions& reg = config_.registration;
     RigidTransform start = prediction;
     bool coarse_used = false;
+    PassOutcome coarse;
     if (!have_velocity_ && !prev_coarse_features_.h_lines.empty() && !coarse_features.h_lines.empty()) {
-      // No velocity yet: a coarse registration on the sparse scans finds the first motion (paper §6.3 needs a
-      // guess within the candidate distance), the full-resolution passes refine it.
+      // No velocity yet: a registration on the scans downsampled by registration.coarse_downsample finds the
+      // first motion (paper §6.3 needs a guess within the candidate distance), the configured resolution refines it.
       FrameStats coarse_stats;
-      const PassOutcome coarse = register_features(prev_coarse_features_, coarse_features, prediction, prediction,
-                                                   false, &coarse_stats);
+      coarse = register_features(prev_coarse_features_, coarse_features, prediction, prediction, false,
+                                 &coarse_stats);
       st.ms.candidates += coarse_stats.ms.candidates;
       st.ms.ransac += coarse_stats.ms.ransac;
       st.iterations += coarse_stats.iterations;
-      if (coarse.have) {
+      if (coarse.have && !coarse.stats.degenerate) {
         start = coarse.best;
         coarse_used = true;
       }
     }
-    const PassOutcome outcome = register_features(prev_features_, features, prediction, start,
-                                                  have_velocity_ || coarse_used, &st);
+    PassOutcome outcome = register_features(prev_features_, features, prediction, start,
+                                            have_velocity_ || coarse_used, &st);
+    // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
+    // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
+    if (coarse_used && !(outcome.have && !outcome.stats.degenerate)) outcome = coarse;
     const RigidTransform& best = outcome.best;
     const MotionStats& best_stats = outcome.stats;
     const bool have = outcome.have;

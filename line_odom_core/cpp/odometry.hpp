@@ -34,7 +34,7 @@ struct RegistrationOptions {
   double covariance_scale = 1.0;        // multiplies the refinement's covariance (it ignores candidate errors)
   double motion_prior_translation_sigma = 0.0;  // constant-velocity prior per frame (m); 0: no fusion
   double motion_prior_rotation_sigma_deg = 0.5;
-  int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / <= downsample: off)
+  int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / = downsample: off)
   double fallback_translation_sigma = 0.5;    // covariance reported when the prediction is held
   double fallback_rotation_sigma_deg = 5.0;
 };

@@ -204,9 +204,13 @@ double all_inlier_probability(const E& est, int solver, const RansacScore& best)
 
 }  // namespace ransac_detail
 
-// Returns true and writes the best model when some hypothesis was scored.
+// Returns true and writes the best model when some hypothesis was scored. With `incumbent` (e.g. the motion
+// predicted and refined before sampling), it is scored first and the samples must beat it: its support sets the
+// stopping criterion from the start, and the pre-test and bound checks drop weaker hypotheses early. It stays the
+// result (best_solver -1) when no sample does better.
 template <class E>
-bool hybrid_ransac(E& est, const RansacOptions& options, typename E::Model* best_model, RansacStats* stats_out) {
+bool hybrid_ransac(E& est, const RansacOptions& options, typename E::Model* best_model, RansacStats* stats_out,
+                   const typename E::Model* incumbent = nullptr) {
   static_assert(E::kNumDataTypes >= 1 && E::kNumDataTypes <= kRansacMaxDataTypes, "kNumDataTypes out of range");
   static_assert(E::kNumSolvers >= 1 && E::kNumSolvers <= kRansacMaxSolvers, "kNumSolvers out of range");
   using Model = typename E::Model;
@@ -237,6 +241,15 @@ bool hybrid_ransac(E& est, const RansacOptions& options, typename E::Model* best
   HybridSample<E> sample{};
   std::array<Model, E::kMaxModels> models;
   bool have_best = false;
+  if (incumbent) {
+    ++stats.models;
+    const RansacScore sc = est.score(*incumbent, stats.best_score.value);
+    if (sc.value > stats.best_score.value) {
+      *best_model = *incumbent;
+      have_best = true;
+      stats.best_score = sc;
+    }
+  }
 
   auto update_probabilities = [&]() {
     double top = 0.0;
