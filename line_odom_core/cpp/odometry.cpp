@@ -180,12 +180,13 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     mopt.seed = mix_seed(config_.seed, static_cast<std::uint64_t>(frames_), static_cast<std::uint64_t>(pass));
     // The guess itself, refined on this pass's candidates, competes with the RANSAC samples: it is scored first
     // and whichever has the larger weighted inlier count on the same candidates is kept (paper §6.3).
+    // An ill-conditioned refined guess still competes: a sample must out-support it to win, or the pass fails.
     RefineResult refined;
-    const bool refined_ok = refine_motion(corr, best, ropt, &refined) && sane(refined.T) && !refined.degenerate &&
-                            refined.line_inliers >= reg.min_inliers;
+    const bool refine_converged = refine_motion(corr, best, ropt, &refined) && sane(refined.T);
+    const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
     RigidTransform estimate;
     MotionStats ms;
-    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms, refined_ok ? &refined.T : nullptr) &&
+    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms, refine_converged ? &refined.T : nullptr) &&
                     sane(estimate) && ms.inliers >= reg.min_inliers;
     st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
