@@ -222,10 +222,26 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     failure.clear();
   }
 
-  if (have && !best_stats.degenerate && reg.max_axis_support < 1.0 &&
-      axis_support(corr, best, config_.ransac.inlier_threshold, ropt.min_line_sine) >= reg.max_axis_support) {
-    best_stats.degenerate = true;  // a motion the intersections do not observe (refine.hpp: axis_support)
-    failure = "unobservable motion (a push along one axis keeps the inliers)";
+  if (have && !best_stats.degenerate) {
+    const double thr = config_.ransac.inlier_threshold;
+    int inliers = 0;
+    score_motion(corr, best, thr, ropt.min_line_sine, &inliers);
+    const double pairs = static_cast<double>(corr.lines_a.size());
+    double pair_share = 0.0;
+    const double weight_share = reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0
+                                    ? axis_support(corr, best, thr, ropt.min_line_sine, &pair_share)
+                                    : 0.0;
+    if (pairs > 0.0 && inliers < reg.min_inlier_ratio * pairs) {
+      // Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few
+      // chance pairs within the threshold, whatever motion they are fitted to.
+      best_stats.degenerate = true;
+      failure = "too few candidate pairs meet (" + std::to_string(inliers) + " of " +
+                std::to_string(corr.lines_a.size()) + " < registration.min_inlier_ratio)";
+    } else if ((reg.max_axis_support < 1.0 && weight_share >= reg.max_axis_support) ||
+               (reg.max_axis_pair_support < 1.0 && pair_share >= reg.max_axis_pair_support)) {
+      best_stats.degenerate = true;  // a motion the intersections do not observe (refine.hpp: axis_support)
+      failure = "unobservable motion (a push along one axis keeps the inliers)";
+    }
   }
 
   PassOutcome out;
@@ -416,6 +432,8 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);
   visit("registration.constant_velocity", c.registration.constant_velocity);
   visit("registration.max_axis_support", c.registration.max_axis_support);
+  visit("registration.max_axis_pair_support", c.registration.max_axis_pair_support);
+  visit("registration.min_inlier_ratio", c.registration.min_inlier_ratio);
   visit("registration.max_prediction_gap", c.registration.max_prediction_gap);
   visit("registration.guess_preference", c.registration.guess_preference);
   visit("registration.coarse_downsample", c.registration.coarse_downsample);

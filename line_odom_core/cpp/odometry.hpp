@@ -28,6 +28,8 @@ struct RegistrationOptions {
   double max_rotation_deg = 30.0;       // ... or rotated this much from it
   bool constant_velocity = true;        // false: predict identity
   double max_axis_support = 0.97;       // degenerate when a push along one axis keeps this share of the inliers
+  double max_axis_pair_support = 0.995;  // ... or this share of the inlier pairs, each counted once
+  double min_inlier_ratio = 0.3;        // degenerate when fewer of the last pass's candidate pairs are inliers
   double max_prediction_gap = 1.0;      // s; a longer stamp gap drops the velocity (start as after a reset)
   double guess_preference = 0.0;        // the RANSAC winner must beat the refined guess's weighted inliers by
                                         // this fraction to replace it

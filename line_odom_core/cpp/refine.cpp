@@ -161,12 +161,15 @@ void copy_refinement_stats(const RefineResult& refined, MotionStats* stats) {
   stats->degenerate = refined.degenerate;
 }
 
-double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine) {
+double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine,
+                    double* pair_share) {
+  if (pair_share) *pair_share = 0.0;
   const size_t n = std::min(data.lines_a.size(), data.lines_b.size());
+  auto weight = [&](size_t j) { return data.weights.size() == n ? data.weights[j] : 1.0; };
   std::vector<size_t> inliers;
   double total = 0.0, r2 = 0.0;
   for (size_t j = 0; j < n; ++j) {
-    const double w = data.weights.empty() ? 1.0 : data.weights[j];
+    const double w = weight(j);
     if (w > 0.0 && line_pair_is_inlier(data.lines_a[j], data.lines_b[j].moved(T), threshold, min_sine)) {
       inliers.push_back(j);
       total += w;
@@ -174,21 +177,27 @@ double axis_support(const Correspondences& data, const RigidTransform& T, double
     }
   }
   if (inliers.empty() || total <= 0.0) return 0.0;
+  const double count = static_cast<double>(inliers.size());
   const double push = 20.0 * threshold;
-  const double turn = push / std::max(1.0, std::sqrt(r2 / static_cast<double>(inliers.size())));
-  double worst = 0.0;
+  const double turn = push / std::max(1.0, std::sqrt(r2 / count));
+  double worst = 0.0, worst_pairs = 0.0;
   for (int axis = 0; axis < 6; ++axis) {
     for (const double sign : {-1.0, 1.0}) {
       Vec6 xi = Vec6::Zero();
       xi[axis] = sign * (axis < 3 ? push : turn);
       const RigidTransform P = se3_exp(xi) * T;
-      double kept = 0.0;
-      for (const size_t j : inliers)
-        if (line_pair_is_inlier(data.lines_a[j], data.lines_b[j].moved(P), threshold, min_sine))
-          kept += data.weights.empty() ? 1.0 : data.weights[j];
+      double kept = 0.0, kept_pairs = 0.0;
+      for (const size_t j : inliers) {
+        if (line_pair_is_inlier(data.lines_a[j], data.lines_b[j].moved(P), threshold, min_sine)) {
+          kept += weight(j);
+          kept_pairs += 1.0;
+        }
+      }
       worst = std::max(worst, kept / total);
+      worst_pairs = std::max(worst_pairs, kept_pairs / count);
     }
   }
+  if (pair_share) *pair_share = worst_pairs;
   return worst;
 }
 

@@ -51,8 +51,11 @@ void copy_refinement_stats(const RefineResult& refined, MotionStats* stats);
 // Largest share of the inlier weight at T that survives a push along a single axis of xi: the translations by
 // 20 thresholds, the rotations by the angle that moves the inlier lines as far. Near 1: the intersections do
 // not observe that motion (pairs on planes parallel to it, e.g. an endless corridor), however well-conditioned
-// the coincidental pairs make J^T W J look.
-double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine);
+// the coincidental pairs make J^T W J look. `pair_share` (optional) gets the same for the share of inlier
+// pairs, each counted once: the cluster weights can give a handful of pairs without a normal cluster a third of
+// the weight, so a few coincidental pairs (two planes' seam) would otherwise pass for an observed axis.
+double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine,
+                    double* pair_share = nullptr);
 
 // Gauss-Newton / IRLS from T0 over the pairs that are inliers at each iterate. Returns false (result->T = T0)
 // when fewer residuals than unknowns remain or a step is not finite; never writes NaN.
