@@ -250,3 +250,27 @@ def test_corridor_with_the_vlp16_preset_is_flagged_not_confidently_wrong():
         check_finite(res)
         check_held(res, prev_delta, config)
         prev_delta = res.delta
+
+
+_EARLY_STOP = pytest.mark.xfail(strict=True, reason="known engine bug (c0ca7da, reported to registration/ransac "
+                                "2026-11-25): no velocity yet, the refined standing-still guess lands on a wrong shift "
+                                "along the street that most pairs (ground, facades) support; as RANSAC's incumbent its "
+                                "~90 % inlier share stops the sampling at ransac.min_iterations (50) before a sample "
+                                "that observes the shift is drawn (seed 7: 0.66 m wrong, 1 cm sigma; seed 3: held). "
+                                "ransac.min_iterations=300 finds both.")
+FIRST_MOTION_CASES = [pytest.param(seed, noise, marks=_EARLY_STOP if (seed, noise) in ((3, 0.01), (7, 0.01)) else ())
+                      for noise in (None, 0.01) for seed in range(8)]
+
+
+@pytest.mark.parametrize("seed, noise_std", FIRST_MOTION_CASES)
+def test_first_motion_of_a_street_drive_is_found(seed, noise_std):
+    """No velocity yet (the motion model predicts standing still, ~1 m from the truth): the first motion of a
+    structured street drive at 1/36, noise-free and with 1 cm range noise, is registered within the bounds for
+    every seed — neither held nor a confident wrong pose found from the wrong guess."""
+    odom = line_odom_core.Odometry(make_config())
+    frames = list(sim.make("street", frames=2, seed=seed, noise_std=noise_std))
+    register(odom, frames[0])
+    res = register(odom, frames[1])
+    check_finite(res)
+    t, r = frame_error(res.delta, np.linalg.inv(frames[0].pose) @ frames[1].pose)
+    assert not res.degenerate and t < TRANSLATION_BOUND and r < ROTATION_BOUND, (t, r, res.stats)
