@@ -626,7 +626,7 @@ RangeLimits limits_from(double min_range, double max_range) {
 }
 
 py::dict organize_points_py(const py::array& points, const py::object& ring, const std::string& sensor,
-                            double min_range, double max_range, int downsample_step) {
+                            double min_range, double max_range, int downsample_step, bool while_organizing) {
   if (points.ndim() != 2 || points.shape(1) < 3)
     throw py::value_error("points: expected an (N, 3) or (N, >=3) array (x, y, z first), got ndim " +
                           std::to_string(points.ndim()));
@@ -647,18 +647,22 @@ py::dict organize_points_py(const py::array& points, const py::object& ring, con
   if (points.dtype().is(py::dtype::of<float>())) {
     auto a = py::array_t<float, py::array::c_style>::ensure(points);
     py::gil_scoped_release release;
-    img = downsample(organize_points(a.data(), n, stride, ring_ptr, model, limits, &stats), downsample_step);
+    img = while_organizing
+              ? organize_points_downsampled(a.data(), n, stride, ring_ptr, model, limits, downsample_step, &stats)
+              : downsample(organize_points(a.data(), n, stride, ring_ptr, model, limits, &stats), downsample_step);
   } else {
     auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(points);
     if (!a) throw py::value_error("points: expected a numeric array");
     py::gil_scoped_release release;
-    img = downsample(organize_points(a.data(), n, stride, ring_ptr, model, limits, &stats), downsample_step);
+    img = while_organizing
+              ? organize_points_downsampled(a.data(), n, stride, ring_ptr, model, limits, downsample_step, &stats)
+              : downsample(organize_points(a.data(), n, stride, ring_ptr, model, limits, &stats), downsample_step);
   }
   return range_image_dict(img, stats);
 }
 
 py::dict organize_depth_py(const py::array& depth, const Eigen::Matrix3d& K, double min_depth, double max_depth,
-                           int downsample_step) {
+                           int downsample_step, bool while_organizing) {
   if (depth.ndim() != 2) throw py::value_error("depth: expected an (H, W) array of metres");
   if (downsample_step < 1) throw py::value_error("downsample: expected >= 1");
   auto a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(depth);
@@ -669,7 +673,8 @@ py::dict organize_depth_py(const py::array& depth, const Eigen::Matrix3d& K, dou
   RangeImage img;
   {
     py::gil_scoped_release release;
-    img = downsample(organize_depth(a.data(), rows, cols, K, limits, &stats), downsample_step);
+    img = while_organizing ? organize_depth_downsampled(a.data(), rows, cols, K, limits, downsample_step, &stats)
+                           : downsample(organize_depth(a.data(), rows, cols, K, limits, &stats), downsample_step);
   }
   return range_image_dict(img, stats);
 }
@@ -1010,12 +1015,15 @@ PYBIND11_MODULE(_core, m) {
   // ---- scan features (issue 4) ----
   m.def("organize_points", &feature_bindings::organize_points_py, py::arg("points"), py::arg("ring") = py::none(),
         py::arg("sensor") = "hdl64", py::arg("min_range") = 0.0, py::arg("max_range") = 1e9,
-        py::arg("downsample") = 1,
+        py::arg("downsample") = 1, py::arg("downsample_while_organizing") = false,
         "Unorganized LiDAR points (N, >=3) -> range image dict: points (H, W, 3) with NaN holes, valid (H, W), "
-        "source_index (H, W), stats. Rows from `ring`, else the KITTI ring order, else elevation.");
+        "source_index (H, W), stats. Rows from `ring`, else the KITTI ring order, else elevation. "
+        "downsample_while_organizing: bin only the kept rows (same image; stats count the kept rows).");
   m.def("organize_depth", &feature_bindings::organize_depth_py, py::arg("depth"), py::arg("K"),
         py::arg("min_depth") = 0.0, py::arg("max_depth") = 1e9, py::arg("downsample") = 1,
-        "Depth image (H, W) in metres back-projected with K -> range image dict (camera optical frame).");
+        py::arg("downsample_while_organizing") = false,
+        "Depth image (H, W) in metres back-projected with K -> range image dict (camera optical frame). "
+        "downsample_while_organizing: back-project only the kept pixels (same image; stats count them).");
   m.def("extract_features", &feature_bindings::extract_features_py, py::arg("range_image"),
         py::arg("config") = py::none(), py::arg("preset") = "kitti",
         "Organized cloud (H, W, 3) (NaN/zero = hole) -> dict of H/V lines, planes, cluster directions, stats. "

@@ -26,7 +26,7 @@ constexpr double kKittiHdl64ElevationsDeg[64] = {
 
 // atan2 within 2e-6 rad (an odd degree-11 polynomial for atan on [0, 1], fitted minimax to atan here): the
 // azimuth only picks a column (0.18 deg wide) and detects ring wraps, and libm's atan2 was a third of the time.
-double fast_atan2(double y, double x) {
+inline double fast_atan2(double y, double x) {
   const double ax = std::abs(x), ay = std::abs(y);
   const double hi = std::max(ax, ay), lo = std::min(ax, ay);
   if (hi == 0.0) return 0.0;
@@ -107,11 +107,136 @@ class ElevationToRow {
   double top_ = 0.0, bottom_ = 0.0, step_ = 0.0;
 };
 
+// Azimuth in [0, 2pi) as the ring-wrap test has always read it: fast_atan2 stored as a float.
+double wrap_azimuth(double x, double y) {
+  double az = static_cast<float>(fast_atan2(y, x));
+  if (az < 0.0) az += 2.0 * kPi;
+  return az;
+}
+
+// Does the ring wrap between the previous point p and the current point a, i.e. is azimuth(a) < azimuth(p) - pi?
+// With azimuths in [0, 2pi) that holds exactly when p is below the x axis, a above it and a -> p turns clockwise
+// (cross product < 0). Those signs decide unless a point or the angle between them is within ~1e-5 rad of a
+// boundary; then the azimuths themselves decide (fast_atan2's 2e-6 rad error and the float rounding are far
+// inside that margin), so the rings are exactly those of the azimuth test.
+bool ring_wraps(double px, double py, double ax, double ay) {
+  constexpr double kMarginSine = 1e-5;
+  const double sp = std::abs(px) + std::abs(py), sa = std::abs(ax) + std::abs(ay);
+  // a clearly below the axis (azimuth > pi) or p clearly above it (< pi): no wrap, the common case
+  if (ay < -kMarginSine * sa || py > kMarginSine * sp) return false;
+  const double cross = ax * py - ay * px;
+  if (std::abs(py) > kMarginSine * sp && std::abs(ay) > kMarginSine * sa && std::abs(cross) > kMarginSine * sp * sa)
+    return py < 0.0 && ay > 0.0 && cross < 0.0;
+  return wrap_azimuth(ax, ay) < wrap_azimuth(px, py) - kPi;
+}
+
+// Rows of an unorganized cloud. Either ring by ring in input order (ring k = points [ring_start[k],
+// ring_start[k + 1]), KITTI), or one row per point (row_of, -1 = none). Invalid points have ok = 0.
+struct PointRows {
+  std::vector<std::uint8_t> ok;
+  std::vector<size_t> ring_start;  // rings.size() + 1 entries when rows come from the input order
+  std::vector<int> row_of;
+  bool flipped = false;            // row = rows - 1 - ring
+};
+
+// Mean sine of the elevation over rows [0, rows/2) and [rows/2, rows), summed in point order.
+struct HalfElevations {
+  double sum_lo = 0.0, sum_hi = 0.0;
+  size_t n_lo = 0, n_hi = 0;
+  void add(bool low_half, double x, double y, double z) {
+    const double el = z / std::sqrt(x * x + y * y + z * z);
+    if (low_half) {
+      sum_lo += el;
+      ++n_lo;
+    } else {
+      sum_hi += el;
+      ++n_hi;
+    }
+  }
+  // Ring indices may count from the bottom beam (Velodyne drivers) or the top one (Ouster, KITTI order):
+  // flip when the first half of the rows is on average lower than the second.
+  bool upside_down() const { return n_lo > 0 && n_hi > 0 && sum_lo / n_lo < sum_hi / n_hi; }
+};
+
+template <typename T>
+PointRows assign_rows(const T* data, size_t count, size_t stride, const std::int32_t* ring, const SensorModel& model,
+                      OrganizeStats* st) {
+  const int rows = model.rows;
+  PointRows out;
+  out.ok.resize(count);
+  if (ring == nullptr && model.ring_order_from_azimuth_wrap) {
+    // One pass: validity, ring wraps and the elevation sums of the orientation check.
+    HalfElevations half;
+    int r = 0;
+    const T* prev = nullptr;
+    out.ring_start.push_back(0);
+    for (size_t i = 0; i < count; ++i) {
+      const T* p = data + i * stride;
+      out.ok[i] = finite_nonzero(p[0], p[1], p[2]);
+      if (!out.ok[i]) {
+        ++st->invalid_points;
+        continue;
+      }
+      if (prev != nullptr && ring_wraps(prev[0], prev[1], p[0], p[1])) {
+        ++r;
+        out.ring_start.push_back(i);
+      }
+      prev = p;
+      half.add(r < rows / 2, p[0], p[1], p[2]);
+    }
+    out.ring_start.push_back(count);
+    if (r + 1 == rows) {
+      st->row_method = "azimuth_wrap";
+      out.flipped = rows > 1 && half.upside_down();
+      return out;
+    }
+    out.ring_start.clear();
+  } else {
+    for (size_t i = 0; i < count; ++i) {
+      const T* p = data + i * stride;
+      out.ok[i] = finite_nonzero(p[0], p[1], p[2]);
+      if (!out.ok[i]) ++st->invalid_points;
+    }
+  }
+
+  out.row_of.assign(count, -1);
+  if (ring != nullptr) {
+    HalfElevations half;
+    for (size_t i = 0; i < count; ++i) {
+      if (ring[i] < 0 || ring[i] >= rows)
+        throw std::invalid_argument("ring: value " + std::to_string(ring[i]) + " at point " + std::to_string(i) +
+                                    " outside [0, " + std::to_string(rows) + ") of sensor model '" + model.name +
+                                    "'");
+      out.row_of[i] = ring[i];
+      const T* p = data + i * stride;
+      if (out.ok[i]) half.add(ring[i] < rows / 2, p[0], p[1], p[2]);
+    }
+    st->row_method = "ring";
+    if (rows > 1 && half.upside_down())
+      for (auto& r : out.row_of) r = rows - 1 - r;
+    return out;
+  }
+  const ElevationToRow to_row(model);
+  for (size_t i = 0; i < count; ++i) {
+    if (!out.ok[i]) continue;
+    const T* p = data + i * stride;
+    const double x = p[0], y = p[1], z = p[2];
+    out.row_of[i] = to_row(std::atan2(z, std::hypot(x, y)));
+    if (out.row_of[i] < 0) ++st->outside_rows;
+  }
+  st->row_method = "elevation";
+  return out;
+}
+
+// Organizes the rows r with r % step == 0 and, of those, keeps the columns c with c % step == 0: the points of
+// other rows never meet those cells (a point takes its own cell or a free neighbour in its row), so the image
+// equals downsample(full image, step) without the work for the dropped rows.
 template <typename T>
 RangeImage organize_points_impl(const T* data, size_t count, size_t stride, const std::int32_t* ring,
-                                const SensorModel& model, const RangeLimits& limits, OrganizeStats* stats) {
+                                const SensorModel& model, const RangeLimits& limits, int step, OrganizeStats* stats) {
   validate_model(model);
   validate_limits(limits);
+  if (step < 1) throw std::invalid_argument("downsample: step must be >= 1");
   if (stride < 3) throw std::invalid_argument("points: stride must be >= 3 (x, y, z per point)");
   if (count > static_cast<size_t>(std::numeric_limits<std::int32_t>::max()))
     throw std::invalid_argument("points: too many points");
@@ -120,133 +245,91 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
   OrganizeStats st;
   st.input_points = count;
   const int rows = model.rows, cols = model.cols;
+  const PointRows point_rows = assign_rows(data, count, stride, ring, model, &st);
+  const std::uint8_t* ok = point_rows.ok.data();
 
-  // Row of every point (-1 = drop). Invalid points are holes regardless of the row method.
-  std::vector<int> row_of(count, -1);
-  std::vector<std::uint8_t> ok(count, 0);
-  std::vector<float> azimuth(count, 0.0f);  // atan2(y, x), computed once
-  for (size_t i = 0; i < count; ++i) {
-    const T* p = data + i * stride;
-    ok[i] = finite_nonzero(p[0], p[1], p[2]);
-    if (!ok[i]) {
-      ++st.invalid_points;
-      continue;
-    }
-    azimuth[i] = static_cast<float>(fast_atan2(static_cast<double>(p[1]), static_cast<double>(p[0])));
-  }
-
-  bool rows_assigned = false;
-  bool check_orientation = false;
-  if (ring != nullptr) {
-    for (size_t i = 0; i < count; ++i) {
-      if (ring[i] < 0 || ring[i] >= rows)
-        throw std::invalid_argument("ring: value " + std::to_string(ring[i]) + " at point " + std::to_string(i) +
-                                    " outside [0, " + std::to_string(rows) + ") of sensor model '" + model.name +
-                                    "'");
-      row_of[i] = ring[i];
-    }
-    st.row_method = "ring";
-    rows_assigned = true;
-    check_orientation = true;
-  } else if (model.ring_order_from_azimuth_wrap) {
-    int r = 0;
-    double prev = -1.0;
-    for (size_t i = 0; i < count; ++i) {
-      if (!ok[i]) continue;
-      double az = azimuth[i];
-      if (az < 0.0) az += 2.0 * kPi;
-      if (prev >= 0.0 && az < prev - kPi) ++r;
-      prev = az;
-      row_of[i] = r;
-    }
-    if (r + 1 == rows) {
-      st.row_method = "azimuth_wrap";
-      rows_assigned = true;
-      check_orientation = true;
-    } else {
-      std::fill(row_of.begin(), row_of.end(), -1);
-    }
-  }
-  if (!rows_assigned) {
-    const ElevationToRow to_row(model);
-    for (size_t i = 0; i < count; ++i) {
-      if (!ok[i]) continue;
-      const T* p = data + i * stride;
-      const double x = p[0], y = p[1], z = p[2];
-      row_of[i] = to_row(std::atan2(z, std::hypot(x, y)));
-      if (row_of[i] < 0) ++st.outside_rows;
-    }
-    st.row_method = "elevation";
-  }
-
-  // Ring indices may count from the bottom beam (Velodyne drivers) or the top one (Ouster, KITTI order):
-  // flip when the first half of the rows is on average lower than the second.
-  if (check_orientation && rows > 1) {
-    double sum_lo = 0.0, sum_hi = 0.0;
-    size_t n_lo = 0, n_hi = 0;
-    for (size_t i = 0; i < count; ++i) {
-      if (!ok[i]) continue;
-      const T* p = data + i * stride;
-      const double x = p[0], y = p[1], z = p[2];
-      const double el = z / std::sqrt(x * x + y * y + z * z);  // sine of the elevation
-      if (row_of[i] < rows / 2) {
-        sum_lo += el;
-        ++n_lo;
-      } else {
-        sum_hi += el;
-        ++n_hi;
-      }
-    }
-    if (n_lo > 0 && n_hi > 0 && sum_lo / n_lo < sum_hi / n_hi)
-      for (auto& r : row_of)
-        if (r >= 0) r = rows - 1 - r;
-  }
-
-  RangeImage img = empty_image(rows, cols, true);
-  std::vector<double> cell_range(static_cast<size_t>(rows) * cols, 0.0);
+  // Cells of the kept rows at full column resolution: the input point in each (-1 = free).
+  const int out_rows = (rows + step - 1) / step, out_cols = (cols + step - 1) / step;
+  std::vector<std::int32_t> cell_point(static_cast<size_t>(out_rows) * cols, -1);
   const double cols_per_rad = cols / (2.0 * kPi);
-  for (size_t i = 0; i < count; ++i) {
-    if (!ok[i]) continue;
+  auto range_of = [&](size_t i) {
     const T* p = data + i * stride;
-    const Vec3 x(p[0], p[1], p[2]);
-    const double range = x.norm();
+    return Vec3(p[0], p[1], p[2]).norm();
+  };
+  // Point i (valid) into row `out_row` of the kept rows (-1: in no row, only counted).
+  auto place = [&](size_t i, int out_row) {
+    const double range = range_of(i);
     if (range < limits.min_range || range > limits.max_range) {
       ++st.out_of_range;
-      continue;
+      return;
     }
-    const int r = row_of[i];
-    if (r < 0) continue;
-    const double u = (kPi - azimuth[i]) * cols_per_rad;  // [0, cols]
+    if (out_row < 0) return;
+    const T* p = data + i * stride;
+    const double azimuth = static_cast<float>(fast_atan2(static_cast<double>(p[1]), static_cast<double>(p[0])));
+    const double u = (kPi - azimuth) * cols_per_rad;  // [0, cols] up to the float rounding of pi
     int c = static_cast<int>(u);
+    const double floor_u = static_cast<double>(c) - (static_cast<double>(c) > u ? 1.0 : 0.0);  // std::floor(u)
     if (c >= cols) c -= cols;
     if (c < 0) c += cols;
-    size_t cell = static_cast<size_t>(r) * cols + c;
-    if (img.valid[cell]) {
-      // Azimuths of one ring are not exactly on a grid: use the free neighbour on the point's side, then
-      // the other; else keep the nearer point.
-      const int first = (u - std::floor(u) < 0.5) ? -1 : 1;
-      bool placed = false;
-      for (int side : {first, -first}) {
-        const int cn = (c + side + cols) % cols;
-        const size_t celln = static_cast<size_t>(r) * cols + cn;
-        if (!img.valid[celln]) {
-          cell = celln;
-          placed = true;
-          break;
-        }
-      }
-      if (!placed) {
-        ++st.cell_collisions;
-        if (range >= cell_range[cell]) continue;
-        --st.kept_points;  // replaced below
+    std::int32_t* row_cells = cell_point.data() + static_cast<size_t>(out_row) * cols;
+    // Azimuths of one ring are not exactly on a grid: a taken cell sends the point to the free neighbour on
+    // its side, then to the other; with all three taken the nearer point keeps the cell. Selects, not
+    // branches: which cells are taken is unpredictable.
+    const int side = (u - floor_u < 0.5) ? -1 : 1;
+    int n1 = c + side, n2 = c - side;
+    n1 += n1 < 0 ? cols : 0;
+    n1 -= n1 >= cols ? cols : 0;
+    n2 += n2 < 0 ? cols : 0;
+    n2 -= n2 >= cols ? cols : 0;
+    const bool free_c = row_cells[c] < 0, free_1 = row_cells[n1] < 0, free_2 = row_cells[n2] < 0;
+    const int cell = free_c ? c : free_1 ? n1 : free_2 ? n2 : c;
+    if (!(free_c | free_1 | free_2)) {
+      ++st.cell_collisions;
+      if (range >= range_of(static_cast<size_t>(row_cells[c]))) return;
+    }
+    row_cells[cell] = static_cast<std::int32_t>(i);
+  };
+
+  if (!point_rows.ring_start.empty()) {
+    for (int out_row = 0; out_row < out_rows; ++out_row) {
+      const int row = out_row * step;
+      const int k = point_rows.flipped ? rows - 1 - row : row;
+      for (size_t i = point_rows.ring_start[k]; i < point_rows.ring_start[k + 1]; ++i)
+        if (ok[i]) place(i, out_row);
+    }
+  } else {
+    for (size_t i = 0; i < count; ++i) {
+      if (!ok[i]) continue;
+      const int r = point_rows.row_of[i];
+      if (r < 0) {
+        place(i, -1);
+      } else if (r % step == 0) {
+        place(i, r / step);
       }
     }
-    img.points[cell] = x;
-    img.valid[cell] = 1;
-    img.source_index[cell] = static_cast<std::int32_t>(i);
-    cell_range[cell] = range;
-    ++st.kept_points;
   }
+
+  RangeImage img;
+  img.rows = out_rows;
+  img.cols = out_cols;
+  const size_t n_out = static_cast<size_t>(out_rows) * out_cols;
+  img.points.resize(n_out);
+  img.valid.resize(n_out);
+  img.source_index.resize(n_out);
+  for (int r = 0; r < out_rows; ++r)
+    for (int c = 0; c < out_cols; ++c) {
+      const size_t cell = static_cast<size_t>(r) * out_cols + c;
+      const std::int32_t i = cell_point[static_cast<size_t>(r) * cols + static_cast<size_t>(c) * step];
+      img.source_index[cell] = i;
+      img.valid[cell] = i >= 0;
+      if (i >= 0) {
+        const T* p = data + static_cast<size_t>(i) * stride;
+        img.points[cell] = Vec3(p[0], p[1], p[2]);
+        ++st.kept_points;
+      } else {
+        img.points[cell] = Vec3::Zero();
+      }
+    }
   if (stats) *stats = st;
   return img;
 }
@@ -278,6 +361,53 @@ RangeImage organize_cloud_impl(const T* data, int rows, int cols, size_t stride,
     img.points[i] = x;
     img.valid[i] = 1;
     ++st.kept_points;
+  }
+  if (stats) *stats = st;
+  return img;
+}
+
+// The kept pixels (every step-th row and column) of a depth image, back-projected; each written once.
+RangeImage organize_depth_impl(const float* depth, int rows, int cols, const Mat3& K, const RangeLimits& limits,
+                               int step, OrganizeStats* stats) {
+  validate_limits(limits);
+  if (rows < 1 || cols < 1) throw std::invalid_argument("depth: rows and cols must be >= 1");
+  if (depth == nullptr) throw std::invalid_argument("depth: null data");
+  if (step < 1) throw std::invalid_argument("downsample: step must be >= 1");
+  const double fx = K(0, 0), fy = K(1, 1), cx = K(0, 2), cy = K(1, 2);
+  if (!K.allFinite() || !(fx > 0.0) || !(fy > 0.0))
+    throw std::invalid_argument("K: expected finite intrinsics with fx > 0 and fy > 0");
+  OrganizeStats st;
+  st.row_method = "depth";
+  const int out_rows = (rows + step - 1) / step, out_cols = (cols + step - 1) / step;
+  RangeImage img;
+  img.rows = out_rows;
+  img.cols = out_cols;
+  img.points.resize(static_cast<size_t>(out_rows) * out_cols);
+  img.valid.resize(img.points.size());
+  st.input_points = static_cast<size_t>(rows) * cols;
+  for (int r = 0; r < out_rows; ++r) {
+    const int v = r * step;
+    const double ry = (v - cy) / fy;
+    const float* depth_row = depth + static_cast<size_t>(v) * cols;
+    Vec3* points = img.points.data() + static_cast<size_t>(r) * out_cols;
+    std::uint8_t* valid = img.valid.data() + static_cast<size_t>(r) * out_cols;
+    for (int c = 0; c < out_cols; ++c) {
+      const int u = c * step;
+      const double z = depth_row[u];
+      points[c] = Vec3::Zero();
+      valid[c] = 0;
+      if (!std::isfinite(z) || z <= 0.0) {
+        ++st.invalid_points;
+        continue;
+      }
+      if (z < limits.min_range || z > limits.max_range) {
+        ++st.out_of_range;
+        continue;
+      }
+      points[c] = Vec3((u - cx) / fx * z, ry * z, z);
+      valid[c] = 1;
+      ++st.kept_points;
+    }
   }
   if (stats) *stats = st;
   return img;
@@ -317,11 +447,21 @@ std::vector<std::string> sensor_preset_names() { return {"hdl64", "kitti", "vlp1
 
 RangeImage organize_points(const float* data, size_t count, size_t stride, const std::int32_t* ring,
                            const SensorModel& model, const RangeLimits& limits, OrganizeStats* stats) {
-  return organize_points_impl(data, count, stride, ring, model, limits, stats);
+  return organize_points_impl(data, count, stride, ring, model, limits, 1, stats);
 }
 RangeImage organize_points(const double* data, size_t count, size_t stride, const std::int32_t* ring,
                            const SensorModel& model, const RangeLimits& limits, OrganizeStats* stats) {
-  return organize_points_impl(data, count, stride, ring, model, limits, stats);
+  return organize_points_impl(data, count, stride, ring, model, limits, 1, stats);
+}
+RangeImage organize_points_downsampled(const float* data, size_t count, size_t stride, const std::int32_t* ring,
+                                       const SensorModel& model, const RangeLimits& limits, int step,
+                                       OrganizeStats* stats) {
+  return organize_points_impl(data, count, stride, ring, model, limits, step, stats);
+}
+RangeImage organize_points_downsampled(const double* data, size_t count, size_t stride, const std::int32_t* ring,
+                                       const SensorModel& model, const RangeLimits& limits, int step,
+                                       OrganizeStats* stats) {
+  return organize_points_impl(data, count, stride, ring, model, limits, step, stats);
 }
 
 RangeImage organize_cloud(const float* data, int rows, int cols, size_t stride, const RangeLimits& limits,
@@ -335,36 +475,11 @@ RangeImage organize_cloud(const double* data, int rows, int cols, size_t stride,
 
 RangeImage organize_depth(const float* depth, int rows, int cols, const Mat3& K, const RangeLimits& limits,
                           OrganizeStats* stats) {
-  validate_limits(limits);
-  if (rows < 1 || cols < 1) throw std::invalid_argument("depth: rows and cols must be >= 1");
-  if (depth == nullptr) throw std::invalid_argument("depth: null data");
-  const double fx = K(0, 0), fy = K(1, 1), cx = K(0, 2), cy = K(1, 2);
-  if (!K.allFinite() || !(fx > 0.0) || !(fy > 0.0))
-    throw std::invalid_argument("K: expected finite intrinsics with fx > 0 and fy > 0");
-  OrganizeStats st;
-  st.row_method = "depth";
-  RangeImage img = empty_image(rows, cols, false);
-  st.input_points = static_cast<size_t>(rows) * cols;
-  for (int v = 0; v < rows; ++v) {
-    const double ry = (v - cy) / fy;
-    for (int u = 0; u < cols; ++u) {
-      const size_t i = static_cast<size_t>(v) * cols + u;
-      const double z = depth[i];
-      if (!std::isfinite(z) || z <= 0.0) {
-        ++st.invalid_points;
-        continue;
-      }
-      if (z < limits.min_range || z > limits.max_range) {
-        ++st.out_of_range;
-        continue;
-      }
-      img.points[i] = Vec3((u - cx) / fx * z, ry * z, z);
-      img.valid[i] = 1;
-      ++st.kept_points;
-    }
-  }
-  if (stats) *stats = st;
-  return img;
+  return organize_depth_impl(depth, rows, cols, K, limits, 1, stats);
+}
+RangeImage organize_depth_downsampled(const float* depth, int rows, int cols, const Mat3& K,
+                                      const RangeLimits& limits, int step, OrganizeStats* stats) {
+  return organize_depth_impl(depth, rows, cols, K, limits, step, stats);
 }
 
 RangeImage downsample(const RangeImage& image, int step) {

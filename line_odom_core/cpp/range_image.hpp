@@ -60,6 +60,16 @@ RangeImage organize_points(const float* data, std::size_t count, std::size_t str
 RangeImage organize_points(const double* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
                            const SensorModel& model, const RangeLimits& limits, OrganizeStats* stats = nullptr);
 
+// Organizing and downsampling in one pass: the image equals downsample(organize_points(...), step), but only
+// the rows that downsampling keeps are binned into columns. Stats count the points of the kept rows (and of no
+// row) only; input_points and invalid_points still count every point.
+RangeImage organize_points_downsampled(const float* data, std::size_t count, std::size_t stride,
+                                       const std::int32_t* ring, const SensorModel& model, const RangeLimits& limits,
+                                       int step, OrganizeStats* stats = nullptr);
+RangeImage organize_points_downsampled(const double* data, std::size_t count, std::size_t stride,
+                                       const std::int32_t* ring, const SensorModel& model, const RangeLimits& limits,
+                                       int step, OrganizeStats* stats = nullptr);
+
 // An organized cloud (rows x cols points, row-major, `stride` elements per point) used as it is.
 RangeImage organize_cloud(const float* data, int rows, int cols, std::size_t stride, const RangeLimits& limits,
                           OrganizeStats* stats = nullptr);
@@ -70,6 +80,10 @@ RangeImage organize_cloud(const double* data, int rows, int cols, std::size_t st
 // K = [fx 0 cx; 0 fy cy; 0 0 1]: x = (u - cx) z / fx, y = (v - cy) z / fy (camera optical frame).
 RangeImage organize_depth(const float* depth, int rows, int cols, const Mat3& K, const RangeLimits& limits,
                           OrganizeStats* stats = nullptr);
+// downsample(organize_depth(...), step) back-projecting only the kept pixels; stats count the kept pixels
+// (input_points still counts every pixel).
+RangeImage organize_depth_downsampled(const float* depth, int rows, int cols, const Mat3& K,
+                                      const RangeLimits& limits, int step, OrganizeStats* stats = nullptr);
 
 // Keeps rows 0, s, 2s, ... and columns 0, s, 2s, ... (ceil(rows/s) x ceil(cols/s)); s = 1 returns a copy.
 RangeImage downsample(const RangeImage& image, int step);
