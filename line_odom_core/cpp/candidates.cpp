@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <utility>
 
 namespace line_odom {
@@ -18,8 +19,8 @@ double deg2rad(double deg) { return deg * kPi / 180.0; }
 
 // Segments are bucketed in a dense voxel grid over their bounding box by points sampled along them. With
 // samples every cell/3 along both segments, two segments closer than `max_distance` = 2/3 cell have samples
-// in neighbouring cells, so a 27-cell lookup around each sample of the query finds every partner. Cells are a
-// CSR array: a lookup is an index, not a hash probe.
+// in neighbouring cells. Each segment is filed under the 27-cell neighbourhood of its samples, so a query only
+// reads the cells of its own samples. Cells are a CSR array: a lookup is an index, not a hash probe.
 class SegmentGrid {
  public:
   SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance)
@@ -33,48 +34,49 @@ class SegmentGrid {
     const Vec3 extent = hi - lo;
     // Coarser cells keep any grid (e.g. a frame with a far-away outlier) within a fixed size; correctness only
     // needs cell >= 1.5 max_distance.
-    auto cells = [&]() { return (extent.array() / cell_ + 3.0).prod(); };
+    auto cells = [&]() { return (extent.array() / cell_ + 5.0).prod(); };
     while (cells() > kMaxCells) cell_ *= 2.0;
     step_ = cell_ / 3.0;
-    origin_ = lo - Vec3::Constant(cell_);
-    for (int k = 0; k < 3; ++k) size_[k] = static_cast<int>(extent[k] / cell_) + 3;
+    origin_ = lo - Vec3::Constant(2.0 * cell_);  // two cells of margin hold the neighbourhoods of the samples
+    for (int k = 0; k < 3; ++k) size_[k] = static_cast<int>(extent[k] / cell_) + 5;
 
+    const size_t total = static_cast<size_t>(size_[0]) * size_[1] * size_[2];
+    std::vector<int> filed_by(total, -1);  // last line filed under the cell
     std::vector<std::pair<int, int>> entries;  // (cell, line id)
+    const int sx = size_[1] * size_[2], sy = size_[2];
     for (int id = 0; id < static_cast<int>(lines.size()); ++id)
-      for_each_sample_cell(lines[id]->segment, [&](int cell) { entries.emplace_back(cell, id); });
-    begin_.assign(static_cast<size_t>(size_[0]) * size_[1] * size_[2] + 1, 0);
+      for_each_sample_cell(lines[id]->segment, [&](int cell) {
+        const int cx = cell / sx, cy = (cell / sy) % size_[1], cz = cell % sy;
+        for (int x = cx - 1; x <= cx + 1; ++x)
+          for (int y = cy - 1; y <= cy + 1; ++y)
+            for (int z = cz - 1; z <= cz + 1; ++z) {
+              const int c = x * sx + y * sy + z;
+              if (filed_by[c] == id) continue;
+              filed_by[c] = id;
+              entries.emplace_back(c, id);
+            }
+      });
+    begin_.assign(total + 1, 0);
     for (const auto& e : entries) ++begin_[e.first + 1];
     for (size_t c = 1; c < begin_.size(); ++c) begin_[c] += begin_[c - 1];
     ids_.resize(entries.size());
     std::vector<int> fill(begin_.begin(), begin_.end() - 1);
     for (const auto& e : entries) ids_[fill[e.first]++] = e.second;
-    seen_.assign(begin_.size() - 1, 0);
   }
 
   // Calls visit(id) for every bucketed segment with a sample in a cell next to a sample of `query`
-  // (an id may be visited more than once; each cell is visited once per query).
+  // (an id may be visited more than once).
   template <typename Visit>
-  void for_each_near(const Segment& query, Visit&& visit) {
-    if (seen_.empty()) return;
-    ++query_stamp_;
-    const int sx = size_[1] * size_[2], sy = size_[2];
+  void for_each_near(const Segment& query, Visit&& visit) const {
+    if (begin_.empty()) return;
     for_each_sample_cell(query, [&](int cell) {
-      const int cx = cell / sx, cy = (cell / sy) % size_[1], cz = cell % sy;
-      for (int x = std::max(cx - 1, 0); x <= std::min(cx + 1, size_[0] - 1); ++x)
-        for (int y = std::max(cy - 1, 0); y <= std::min(cy + 1, size_[1] - 1); ++y)
-          for (int z = std::max(cz - 1, 0); z <= std::min(cz + 1, size_[2] - 1); ++z) {
-            const int c = x * sx + y * sy + z;
-            if (seen_[c] == query_stamp_) continue;
-            seen_[c] = query_stamp_;
-            for (int e = begin_[c]; e < begin_[c + 1]; ++e) visit(ids_[e]);
-          }
+      for (int e = begin_[cell]; e < begin_[cell + 1]; ++e) visit(ids_[e]);
     });
   }
 
  private:
-  // Calls f(cell) for each in-grid cell holding a sample of s (consecutive repeats skipped: a straight segment
-  // crosses a cell in one run of samples). A sample up to one cell outside the grid is moved to the nearest
-  // cell, whose neighbourhood covers its in-grid neighbours; samples farther out have none.
+  // Calls f(cell) for each cell of the grid holding a sample of s (consecutive repeats skipped: a straight
+  // segment crosses a cell in one run of samples; samples outside the grid are near no bucketed segment).
   template <typename F>
   void for_each_sample_cell(const Segment& s, F&& f) const {
     const double len = s.length();
@@ -89,8 +91,8 @@ class SegmentGrid {
       bool inside = true;
       for (int k = 0; k < 3 && inside; ++k) {
         const double c = std::floor((p[k] - origin_[k]) / cell_);
-        inside = c >= -1.0 && c <= size_[k];
-        cell = cell * size_[k] + std::clamp(static_cast<int>(c), 0, size_[k] - 1);
+        inside = c >= 1.0 && c <= size_[k] - 2;
+        cell = cell * size_[k] + static_cast<int>(c);
       }
       if (!inside || cell == previous) continue;
       previous = cell;
@@ -104,9 +106,9 @@ class SegmentGrid {
   Vec3 origin_ = Vec3::Zero();
   std::array<int, 3> size_{};
   std::vector<int> begin_, ids_;
-  std::vector<std::uint32_t> seen_;  // query stamp of the last query that visited the cell
-  std::uint32_t query_stamp_ = 0;
 };
+
+constexpr double kBruteForcePairs = 3e5;  // up to this many line pairs, match without the grid
 
 struct LinePair {
   const LineFeature* a;
@@ -120,10 +122,11 @@ struct IndexedLines {
   std::vector<const LineFeature*> lines;
   std::vector<Vec3> box_lo, box_hi;
   std::vector<double> normal_norm;
-  SegmentGrid grid;
+  double max_distance;
+  std::optional<SegmentGrid> grid;  // built on first use: small frames are matched without it
 
   IndexedLines(const std::vector<LineFeature>& all, double max_distance)
-      : lines(usable(all)), grid(lines, max_distance) {
+      : lines(usable(all)), max_distance(max_distance) {
     box_lo.resize(lines.size());
     box_hi.resize(lines.size());
     normal_norm.resize(lines.size());
@@ -166,11 +169,11 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   const std::vector<Vec3>& box_lo = indexed.box_lo;
   const std::vector<Vec3>& box_hi = indexed.box_hi;
   const std::vector<double>& normal_norm = indexed.normal_norm;
-  SegmentGrid& grid = indexed.grid;
   const double box_gap = opt.max_distance * (1.0 + 1e-9) + 1e-9;
   const double max_cos_lines = std::cos(deg2rad(opt.min_line_angle_deg));
   const double min_cos_normals = std::cos(deg2rad(opt.max_normal_angle_deg));
 
+  const bool brute_force = static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs;
   std::vector<int> last_seen(usable_a.size(), -1);
   std::vector<LinePair> partners;
   for (int ib = 0; ib < static_cast<int>(lines_b.size()); ++ib) {
@@ -183,7 +186,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const double nb_norm = nb.norm();
     const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
     partners.clear();
-    grid.for_each_near(sb, [&](int ia) {
+    auto consider = [&](int ia) {
       if (last_seen[ia] == ib) return;
       last_seen[ia] = ib;
       const LineFeature& la = *usable_a[ia];
@@ -194,7 +197,17 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       if ((box_lo[ia] - sb_hi).maxCoeff() > box_gap || (sb_lo - box_hi[ia]).maxCoeff() > box_gap) return;
       const double dist = segment_distance(la.segment, sb);
       if (dist <= opt.max_distance) partners.push_back({&la, &lb, dist});
-    });
+    };
+    if (brute_force) {
+      // Few pairs: a scan of the contiguous boxes costs less than the grid's cell lists.
+      const Vec3 reach_lo = sb_lo - Vec3::Constant(box_gap + 1e-9), reach_hi = sb_hi + Vec3::Constant(box_gap + 1e-9);
+      for (int ia = 0; ia < static_cast<int>(usable_a.size()); ++ia)
+        if ((box_lo[ia].array() <= reach_hi.array()).all() && (box_hi[ia].array() >= reach_lo.array()).all())
+          consider(ia);
+    } else {
+      if (!indexed.grid) indexed.grid.emplace(usable_a, indexed.max_distance);
+      indexed.grid->for_each_near(sb, consider);
+    }
     if (opt.max_pairs_per_line > 0 && static_cast<int>(partners.size()) > opt.max_pairs_per_line) {
       // Closest k; ties broken by line, so the choice does not depend on the grid's traversal order.
       std::nth_element(partners.begin(), partners.begin() + opt.max_pairs_per_line, partners.end(),
