@@ -252,14 +252,7 @@ def test_corridor_with_the_vlp16_preset_is_flagged_not_confidently_wrong():
         prev_delta = res.delta
 
 
-_EARLY_STOP = pytest.mark.xfail(strict=True, reason="known engine bug (c0ca7da, reported to registration/ransac "
-                                "2026-11-25): no velocity yet, the refined standing-still guess lands on a wrong shift "
-                                "along the street that most pairs (ground, facades) support; as RANSAC's incumbent its "
-                                "~90 % inlier share stops the sampling at ransac.min_iterations (50) before a sample "
-                                "that observes the shift is drawn (seed 7: 0.66 m wrong, 1 cm sigma; seed 3: held). "
-                                "ransac.min_iterations=300 finds both.")
-FIRST_MOTION_CASES = [pytest.param(seed, noise, marks=_EARLY_STOP if (seed, noise) in ((3, 0.01), (7, 0.01)) else ())
-                      for noise in (None, 0.01) for seed in range(8)]
+FIRST_MOTION_CASES = [(seed, noise) for noise in (None, 0.01) for seed in range(8)]
 
 
 @pytest.mark.parametrize("seed, noise_std", FIRST_MOTION_CASES)

@@ -186,7 +186,11 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
     RigidTransform estimate;
     MotionStats ms;
-    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms, refine_converged ? &refined.T : nullptr) &&
+    // Without a motion guess (the first motion, searched from standing still) the refined guess may sit on a
+    // wrong shift that most pairs support: it must not cut the sampling short, so it only competes afterwards.
+    const bool guessed = limit_pairs || have;
+    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms,
+                                    refine_converged && guessed ? &refined.T : nullptr) &&
                     sane(estimate) && ms.inliers >= reg.min_inliers;
     st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
