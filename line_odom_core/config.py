@@ -138,9 +138,10 @@ _ENTRIES: list[ConfigEntry] = [
                 "the inlier pairs, each pair counted once whatever its cluster weight (a few coincidental pairs at "
                 "two planes' seam must not make the corridor's axis look observed; 1 = off)", 0.0, 1.0),
     ConfigEntry("registration.min_inlier_ratio", float, 0.3, "the estimate is degenerate (the prediction is held) "
-                "when fewer than this share of the last pass's candidate line pairs meet within the inlier "
-                "threshold: the lines are too noisy to fix the motion (measured: >= 0.38 on KITTI and TUM fr1/xyz, "
-                "<= 0.26 on a simulated street with 0.2-0.5 m range noise; 0 = off)", 0.0, 1.0),
+                "unless the share of the last pass's candidate line pairs that meet within the inlier threshold is "
+                "shown to exceed this (by 2 binomial standard deviations): otherwise the lines are too noisy to fix "
+                "the motion (measured: >= 0.38 on KITTI and TUM fr1/xyz, 0.11-0.26 on a simulated street with "
+                "0.2-0.5 m range noise; 0 = off)", 0.0, 1.0),
     ConfigEntry("registration.max_prediction_gap", float, 1.0, "a stamp gap longer than this (s) drops the "
                 "velocity: the motion is found afresh as after a reset instead of extrapolated", 1e-3, 3600.0),
     ConfigEntry("registration.guess_preference", float, 0.0, "a RANSAC estimate replaces the refined guess "

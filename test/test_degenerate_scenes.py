@@ -234,13 +234,16 @@ def test_degeneracy_is_reported_in_diagnostics_and_odometry_covariance(kind):
     assert status.level == DiagnosticStatus.OK and {kv.key: kv.value for kv in status.values}["degenerate"] == "False"
 
 
-def test_corridor_with_the_vlp16_preset_is_flagged_not_confidently_wrong():
-    """VLP-16 at full resolution in the endless corridor: ~117k candidate pairs, nearly all on one of the four
-    planes, plus 28 pairs of lines without a normal (ring pieces on floor/ceiling x wall columns) that carry a third
-    of the cluster weight. Four of those meet at the seams under a wrong shift of ~0.9 m along the corridor; they
-    alone "observe" x (a push keeps 87 % of the inlier weight but 99.99 % of the inlier pairs). The pair share
-    (registration.max_axis_pair_support) flags it; before, the estimate was -0.9 m (truth +1 m) with ~0 covariance."""
-    config = line_odom_core.load_config("vlp16")
+@pytest.mark.parametrize("overrides", [{}, {"sensor.cols": 0}], ids=["preset", "1800_azimuth_bins"])
+def test_corridor_with_the_vlp16_preset_is_flagged_not_confidently_wrong(overrides):
+    """VLP-16 in the endless corridor, as shipped (600 azimuth bins) and organized at the sensor's own 1800 firing
+    steps (sensor.cols = 0). At 1800 bins nearly all candidate pairs lie on one of the four planes; the few pairs of
+    lines without a normal (floor/ceiling ring pieces x wall columns) carry a third of the cluster weight, and four
+    of them meet at the seams under a wrong shift of ~0.9 m along the corridor: they alone "observe" x (a push
+    keeps 87 % of the inlier weight but 99.99 % of the inlier pairs). The pair share
+    (registration.max_axis_pair_support) flags it; without it the estimate is -0.9 m (truth +1 m) with ~0
+    covariance."""
+    config = line_odom_core.load_config("vlp16", overrides)
     odom = line_odom_core.Odometry(config)
     frames = list(sim.make("corridor", frames=4, seed=0, sensor="vlp16"))
     prev_delta = np.eye(4)

@@ -235,9 +235,11 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     const double weight_share = reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0
                                     ? axis_support(corr, best, thr, ropt.min_line_sine, &pair_share)
                                     : 0.0;
-    if (pairs > 0.0 && inliers < reg.min_inlier_ratio * pairs) {
-      // Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few
-      // chance pairs within the threshold, whatever motion they are fitted to.
+    // Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few chance
+    // pairs within the threshold, whatever motion they are fitted to. The share must be shown, not just reached:
+    // two binomial standard deviations above min_inlier_ratio (a few dozen candidates prove little).
+    const double r = reg.min_inlier_ratio;
+    if (pairs > 0.0 && r > 0.0 && inliers < r * pairs + 2.0 * std::sqrt(pairs * r * (1.0 - r))) {
       best_stats.degenerate = true;
       failure = "too few candidate pairs meet (" + std::to_string(inliers) + " of " +
                 std::to_string(corr.lines_a.size()) + " < registration.min_inlier_ratio)";
