@@ -36,6 +36,16 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
                    std::vector<LineFeature>* lines) {
   const double cos_wide = std::cos(std::min(90.0, 2.0 * cfg.max_deviation_deg) * kDeg);
   const double cos_dev = std::cos(cfg.max_deviation_deg * kDeg);
+  // The normals and weights of each line's crossings side by side (read three times per line).
+  struct WeightedNormal {
+    Vec3 normal;
+    double weight;
+  };
+  std::vector<WeightedNormal> gathered(lists.items.size());
+  for (size_t k = 0; k < gathered.size(); ++k) {
+    const LineCrossing& x = crossings[lists.items[k]];
+    gathered[k] = {x.normal, x.weight};
+  }
   for (size_t i = 0; i < lines->size(); ++i) {
     LineFeature& f = (*lines)[i];
     f.normal.setZero();
@@ -45,7 +55,7 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
     Vec3 mean = Vec3::Zero();
     double total = 0.0;
     for (int k = b; k < e; ++k) {
-      const LineCrossing& x = crossings[lists.items[k]];
+      const WeightedNormal& x = gathered[k];
       mean += x.weight * x.normal;
       total += x.weight;
     }
@@ -58,7 +68,7 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
       agree = 0;
       agree_weight = 0.0;
       for (int k = b; k < e; ++k) {
-        const LineCrossing& x = crossings[lists.items[k]];
+        const WeightedNormal& x = gathered[k];
         if (x.normal.dot(mean) >= cos_limit) {
           next += x.weight * x.normal;
           agree_weight += x.weight;
@@ -118,25 +128,40 @@ void NormalConfig::validate() const {
 
 std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLines& lines,
                                          const NormalConfig& config) {
-  std::vector<LineCrossing> out;
   const double sin_min = std::sin(config.min_crossing_angle_deg * kDeg);
   const int cells = image.rows * image.cols;
-  for (int cell = 0; cell < cells; ++cell) {
-    const int h = lines.h_label[cell], v = lines.v_label[cell];
-    if (h < 0 || v < 0) continue;
-    // A true crossing has points of both lines on both sides; a shared end point may be a corner where a line
-    // of one surface meets a line of another (their cross product is neither's normal): it weighs less.
-    const int r = cell / image.cols, c = cell % image.cols;
-    const LineFeature& lh = lines.h_lines[h];
-    const LineFeature& lv = lines.v_lines[v];
-    const bool at_end = c == lh.first || c == lh.last || r == lv.first || r == lv.last;
-    Vec3 n = lines.h_lines[h].line.d.cross(lines.v_lines[v].line.d);
-    const double s = n.norm();
-    if (s < sin_min) continue;
-    n /= s;
-    if (n.dot(image.points[cell]) > 0.0) n = -n;
-    out.push_back({h, v, cell, n, at_end ? config.end_crossing_weight : 1.0});
+  const std::int32_t* h_label = lines.h_label.data();
+  const std::int32_t* v_label = lines.v_label.data();
+  size_t both = 0;
+  for (int cell = 0; cell < cells; ++cell) both += (h_label[cell] >= 0) & (v_label[cell] >= 0);
+  std::vector<LineCrossing> out;
+  out.reserve(both);
+  // The V-line fields a crossing reads, packed: the cells of a row visit V-lines in scattered order.
+  struct VLineSpan {
+    int first, last;
+    Vec3 d;
+  };
+  std::vector<VLineSpan> v_spans(lines.v_lines.size());
+  for (size_t i = 0; i < v_spans.size(); ++i) {
+    const LineFeature& f = lines.v_lines[i];
+    v_spans[i] = {f.first, f.last, f.line.d};
   }
+  for (int r = 0; r < image.rows; ++r)
+    for (int c = 0, cell = r * image.cols; c < image.cols; ++c, ++cell) {
+      const int h = h_label[cell], v = v_label[cell];
+      if (h < 0 || v < 0) continue;
+      // A true crossing has points of both lines on both sides; a shared end point may be a corner where a line
+      // of one surface meets a line of another (their cross product is neither's normal): it weighs less.
+      const LineFeature& lh = lines.h_lines[h];
+      const VLineSpan& lv = v_spans[v];
+      const bool at_end = c == lh.first || c == lh.last || r == lv.first || r == lv.last;
+      Vec3 n = lh.line.d.cross(lv.d);
+      const double s = n.norm();
+      if (s < sin_min) continue;
+      n /= s;
+      if (n.dot(image.points[cell]) > 0.0) n = -n;
+      out.push_back({h, v, cell, n, at_end ? config.end_crossing_weight : 1.0});
+    }
   return out;
 }
 
@@ -171,6 +196,20 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
       if (std::abs(c.dot(dirs[k])) > cos_sep) return false;
     return true;
   };
+  // The voters as structure of arrays: the vote count below is a vectorizable loop (same products and sums).
+  std::vector<double> vx, vy, vz;
+  for (size_t j = 0; j < n; j += vote_stride) {
+    vx.push_back(normals[j].x());
+    vy.push_back(normals[j].y());
+    vz.push_back(normals[j].z());
+  }
+  const int voter_count = static_cast<int>(vx.size());
+  auto count_votes = [&](const Vec3& c) {
+    const double cx = c.x(), cy = c.y(), cz = c.z();
+    int votes = 0;
+    for (int j = 0; j < voter_count; ++j) votes += std::abs(vx[j] * cx + vy[j] * cy + vz[j] * cz) >= cos_vote;
+    return votes;
+  };
   int found = 0;
   for (; found < 3; ++found) {
     int best_votes = 0;
@@ -178,8 +217,7 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     for (size_t i = 0; i < n; i += cand_stride) {
       const Vec3& c = normals[i];
       if (!separated(c, found)) continue;
-      int votes = 0;
-      for (size_t j = 0; j < n; j += vote_stride) votes += std::abs(normals[j].dot(c)) >= cos_vote;
+      const int votes = count_votes(c);
       if (votes > best_votes) {
         best_votes = votes;
         best = c;
