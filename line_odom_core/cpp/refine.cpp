@@ -49,12 +49,12 @@ NormalEquations accumulate(const Correspondences& data, const RigidTransform& T,
     if (s2 < min_s2) continue;
     const double f = a.d.dot(b.m) + b.d.dot(a.m);
     if (f * f >= th2 * s2) continue;
-    const double s = std::sqrt(s2);
-    const double r = f / s;
+    const double inv_s = 1.0 / std::sqrt(s2);  // one division per pair, not seven
+    const double r = f * inv_s;
     // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held.
     Vec6 J;
-    J.head<3>() = b.d.cross(a.d) / s;
-    J.tail<3>() = (b.m.cross(a.d) + b.d.cross(a.m)) / s;
+    J.head<3>() = -inv_s * c;
+    J.tail<3>() = inv_s * (b.m.cross(a.d) + b.d.cross(a.m));
     const double w = w_pair * weight_scale * huber_weight(std::abs(r), huber);
     // Lower triangle of H += w J J^T, column by column as Eigen's rankUpdate does, without its call overhead.
     for (int c = 0; c < 6; ++c) {
