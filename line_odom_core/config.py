@@ -144,6 +144,10 @@ _ENTRIES: list[ConfigEntry] = [
                 "0.2-0.5 m range noise; 0 = off)", 0.0, 1.0),
     ConfigEntry("registration.max_prediction_gap", float, 1.0, "a stamp gap longer than this (s) drops the "
                 "velocity: the motion is found afresh as after a reset instead of extrapolated", 1e-3, 3600.0),
+    ConfigEntry("registration.min_sample_pair_share", float, 0.95, "a RANSAC sample replaces the refined guess "
+                "only if it also keeps this share of the guess's inlier pairs, counted unweighted (a wrong motion can "
+                "out-weigh the guess on a few small, heavily weighted normal clusters while losing the others)",
+                0.0, 1.0),
     ConfigEntry("registration.guess_preference", float, 0.0, "a RANSAC estimate replaces the refined guess "
                 "(prediction or previous pass) only when its weighted inlier count is larger by this fraction",
                 0.0, 1.0),

@@ -189,11 +189,18 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     // Without a motion guess (the first motion, searched from standing still) the refined guess may sit on a
     // wrong shift that most pairs support: it must not cut the sampling short, so it only competes afterwards.
     const bool guessed = limit_pairs || have;
-    const bool ok = estimate_motion(corr, best, mopt, &estimate, &ms,
-                                    refine_converged && guessed ? &refined.T : nullptr) &&
-                    sane(estimate) && ms.inliers >= reg.min_inliers;
+    bool ok = estimate_motion(corr, best, mopt, &estimate, &ms, refine_converged && guessed ? &refined.T : nullptr) &&
+              sane(estimate) && ms.inliers >= reg.min_inliers;
     st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
+    if (ok && refine_converged && guessed && ms.best_solver >= 0) {
+      // A sample that out-weighs the refined guess on a few heavily weighted (small) normal clusters while losing
+      // the pairs of the others is a wrong motion, not a correction: a right one keeps those pairs too.
+      int sample_pairs = 0, guess_pairs = 0;
+      score_motion(corr, estimate, thr, ropt.min_line_sine, &sample_pairs);
+      score_motion(corr, refined.T, thr, ropt.min_line_sine, &guess_pairs);
+      ok = sample_pairs >= reg.min_sample_pair_share * guess_pairs;
+    }
     const double score_prior = have ? score_motion(corr, best, thr) : -1.0;
     const double score_ransac = ok ? score_motion(corr, estimate, thr) : -1.0;
     const double score_refined = refined_ok ? score_motion(corr, refined.T, thr) : -1.0;
@@ -364,7 +371,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       st.solver = solver_name(best_stats.best_solver);
       st.registered = true;
     } else {
-      if (have) failure = "degenerate constraints (ill-conditioned refinement)";
+      if (have && failure.empty()) failure = "degenerate constraints (ill-conditioned refinement)";
       result.delta = prediction;
       const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
       result.covariance = Mat6::Zero();
@@ -442,6 +449,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.min_inlier_ratio", c.registration.min_inlier_ratio);
   visit("registration.max_prediction_gap", c.registration.max_prediction_gap);
   visit("registration.guess_preference", c.registration.guess_preference);
+  visit("registration.min_sample_pair_share", c.registration.min_sample_pair_share);
   visit("registration.coarse_downsample", c.registration.coarse_downsample);
   visit("registration.covariance_scale", c.registration.covariance_scale);
   visit("registration.motion_prior_translation_sigma", c.registration.motion_prior_translation_sigma);

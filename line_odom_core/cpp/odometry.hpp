@@ -31,6 +31,7 @@ struct RegistrationOptions {
   double max_axis_pair_support = 0.995;  // ... or this share of the inlier pairs, each counted once
   double min_inlier_ratio = 0.3;        // degenerate when fewer of the last pass's candidate pairs are inliers
   double max_prediction_gap = 1.0;      // s; a longer stamp gap drops the velocity (start as after a reset)
+  double min_sample_pair_share = 0.95;  // ... and keep at least this share of its inlier pairs (unweighted)
   double guess_preference = 0.0;        // the RANSAC winner must beat the refined guess's weighted inliers by
                                         // this fraction to replace it
   double covariance_scale = 1.0;        // multiplies the refinement's covariance (it ignores candidate errors)
