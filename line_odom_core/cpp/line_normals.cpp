@@ -36,16 +36,6 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
                    std::vector<LineFeature>* lines) {
   const double cos_wide = std::cos(std::min(90.0, 2.0 * cfg.max_deviation_deg) * kDeg);
   const double cos_dev = std::cos(cfg.max_deviation_deg * kDeg);
-  // The normals and weights of each line's crossings side by side (read three times per line).
-  struct WeightedNormal {
-    Vec3 normal;
-    double weight;
-  };
-  std::vector<WeightedNormal> gathered(lists.items.size());
-  for (size_t k = 0; k < gathered.size(); ++k) {
-    const LineCrossing& x = crossings[lists.items[k]];
-    gathered[k] = {x.normal, x.weight};
-  }
   for (size_t i = 0; i < lines->size(); ++i) {
     LineFeature& f = (*lines)[i];
     f.normal.setZero();
@@ -55,7 +45,7 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
     Vec3 mean = Vec3::Zero();
     double total = 0.0;
     for (int k = b; k < e; ++k) {
-      const WeightedNormal& x = gathered[k];
+      const LineCrossing& x = crossings[lists.items[k]];
       mean += x.weight * x.normal;
       total += x.weight;
     }
@@ -68,7 +58,7 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
       agree = 0;
       agree_weight = 0.0;
       for (int k = b; k < e; ++k) {
-        const WeightedNormal& x = gathered[k];
+        const LineCrossing& x = crossings[lists.items[k]];
         if (x.normal.dot(mean) >= cos_limit) {
           next += x.weight * x.normal;
           agree_weight += x.weight;
