@@ -274,7 +274,7 @@ void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidT
     group[i] = (c >= 0 && c <= 2) ? c : 3;
     ++counts[group[i]];
   }
-  const int groups = static_cast<int>(std::count_if(counts.begin(), counts.end(), [](int n) { return n > 0; }));
+  const int clusters = static_cast<int>((counts[0] > 0) + (counts[1] > 0) + (counts[2] > 0));
 
   const size_t n = pairs.size();
   out->lines_a.reserve(n);
@@ -288,8 +288,11 @@ void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidT
     out->lines_b.push_back(pairs[i].b->line);
     out->segments_a.push_back(pairs[i].a->segment);
     out->segments_b.push_back(pairs[i].b->segment);
-    // Inverse cluster size, scaled so that the weights average to 1 over all pairs.
-    out->weights.push_back(static_cast<double>(n) / (groups * counts[group[i]]));
+    // Inverse normal-cluster size (paper §6.3), scaled so that the weights average to 1 over all pairs. Pairs
+    // without a normal form no cluster: each weighs 1 (as a group of their own, a handful of them could carry a
+    // third of the weight and decide the motion, e.g. floor-wall seams in a corridor).
+    const double clustered = static_cast<double>(n - counts[3]);
+    out->weights.push_back(group[i] == 3 ? 1.0 : clustered / (clusters * counts[group[i]]));
     out->clusters.push_back(group[i] == 3 ? -1 : group[i]);
   }
 

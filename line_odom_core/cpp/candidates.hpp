@@ -1,7 +1,7 @@
 // Candidate line intersections and plane correspondences between two scans under a motion guess
 // (paper §6.3): H-lines of one frame against V-lines of the other whose segments come within a distance
 // threshold once the current scan is moved by the guess; plane pairs with close normals and centroids near
-// the other plane. Weights are the inverse size of the pair's normal cluster.
+// the other plane. Weights are the inverse size of the pair's normal cluster (1 for pairs without a normal).
 #pragma once
 
 #include <memory>
