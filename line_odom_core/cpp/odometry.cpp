@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <numeric>
 #include <stdexcept>
 
 #include "refine.hpp"
@@ -102,8 +103,10 @@ template <typename Scalar>
 FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std::size_t stride,
                                       const std::int32_t* ring, double stamp) {
   Stopwatch watch;
-  const RangeImage image = organize_points(data, count, stride, ring, sensor_, config_.sensor.limits);
-  return register_range_image(image, stamp, watch.ms());
+  const int step = organize_step(stamp);
+  const RangeImage image =
+      organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
+  return register_range_image(image, stamp, watch.ms(), step);
 }
 
 template <typename Scalar>
@@ -115,8 +118,9 @@ FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols,
 
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp) {
   Stopwatch watch;
-  const RangeImage image = organize_depth(depth, rows, cols, K, config_.sensor.limits);
-  return register_range_image(image, stamp, watch.ms());
+  const int step = organize_step(stamp);
+  const RangeImage image = organize_depth_downsampled(depth, rows, cols, K, config_.sensor.limits, step);
+  return register_range_image(image, stamp, watch.ms(), step);
 }
 
 template <typename Scalar>
@@ -265,7 +269,17 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   return out;
 }
 
-FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms) {
+// Organize only the rows and columns downsampling keeps; while the first motion is searched at
+// registration.coarse_downsample, the rows and columns both steps need.
+int Odometry::organize_step(double stamp) const {
+  const int step = std::max(1, config_.downsample);
+  const int coarse = config_.registration.coarse_downsample;
+  const bool first_motion = !have_velocity_ || stamp - prev_stamp_ > config_.registration.max_prediction_gap;
+  return first_motion && coarse > 0 && coarse != step ? std::gcd(step, coarse) : step;
+}
+
+FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms,
+                                           int organized_step) {
   Stopwatch total;
   FrameResult result;
   result.stamp = stamp;
@@ -280,8 +294,8 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   Stopwatch stage;
   RangeImage sparse;
   const RangeImage* input = &image;
-  if (config_.downsample > 1) {
-    sparse = downsample(image, config_.downsample);
+  if (config_.downsample > organized_step) {
+    sparse = downsample(image, config_.downsample / organized_step);
     input = &sparse;
   }
   st.ms.downsample = stage.ms();
@@ -302,7 +316,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   const int coarse_step = config_.registration.coarse_downsample;
   if (!have_velocity_ && coarse_step > 0 && coarse_step != config_.downsample) {
     stage = Stopwatch();
-    coarse_features = extract_features(downsample(image, coarse_step), config_.features);
+    coarse_features = extract_features(downsample(image, coarse_step / organized_step), config_.features);
     st.ms.features += stage.ms();
   }
 

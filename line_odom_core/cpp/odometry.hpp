@@ -120,7 +120,10 @@ class Odometry {
   std::vector<Vec3> downsampled_points(const Scalar* data, std::size_t count, std::size_t stride,
                                        const std::int32_t* ring) const;
   // Registers an already organized range image (full resolution; downsampling is applied here).
-  FrameResult register_range_image(const RangeImage& image, double stamp, double organize_ms = 0.0);
+  // `image` organized at `organized_step` (1 = full resolution; the step divides config.downsample).
+  FrameResult register_range_image(const RangeImage& image, double stamp, double organize_ms = 0.0,
+                                   int organized_step = 1);
+  int organize_step(double stamp) const;  // the step the next frame is organized at
 
   void reset(const RigidTransform& pose = RigidTransform::identity());
 
