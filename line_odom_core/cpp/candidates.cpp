@@ -121,6 +121,8 @@ struct LinePair {
 struct IndexedLines {
   std::vector<const LineFeature*> lines;
   std::vector<Vec3> box_lo, box_hi;
+  // The same boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
+  std::array<std::vector<float>, 6> box_columns;
   std::vector<double> normal_norm;
   double max_distance;
   std::optional<SegmentGrid> grid;  // built on first use: small frames are matched without it
@@ -134,8 +136,21 @@ struct IndexedLines {
       const Segment& s = lines[i]->segment;
       box_lo[i] = s.a.cwiseMin(s.b);
       box_hi[i] = s.a.cwiseMax(s.b);
+      for (int k = 0; k < 3; ++k) {
+        box_columns[k].push_back(round_down(box_lo[i][k]));
+        box_columns[3 + k].push_back(round_up(box_hi[i][k]));
+      }
       normal_norm[i] = lines[i]->normal.norm();
     }
+  }
+
+  static float round_down(double v) {
+    const float f = static_cast<float>(v);
+    return static_cast<double>(f) <= v ? f : std::nextafter(f, -std::numeric_limits<float>::infinity());
+  }
+  static float round_up(double v) {
+    const float f = static_cast<float>(v);
+    return static_cast<double>(f) >= v ? f : std::nextafter(f, std::numeric_limits<float>::infinity());
   }
 
   static std::vector<const LineFeature*> usable(const std::vector<LineFeature>& all) {
@@ -175,6 +190,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
 
   const bool brute_force = static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs;
   std::vector<int> last_seen(usable_a.size(), -1);
+  std::vector<std::uint8_t> overlap(brute_force ? usable_a.size() : 0);
   std::vector<LinePair> partners;
   for (int ib = 0; ib < static_cast<int>(lines_b.size()); ++ib) {
     const LineFeature& lb = lines_b[ib];
@@ -199,11 +215,19 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       if (dist <= opt.max_distance) partners.push_back({&la, &lb, dist});
     };
     if (brute_force) {
-      // Few pairs: a scan of the contiguous boxes costs less than the grid's cell lists.
-      const Vec3 reach_lo = sb_lo - Vec3::Constant(box_gap + 1e-9), reach_hi = sb_hi + Vec3::Constant(box_gap + 1e-9);
-      for (int ia = 0; ia < static_cast<int>(usable_a.size()); ++ia)
-        if ((box_lo[ia].array() <= reach_hi.array()).all() && (box_hi[ia].array() >= reach_lo.array()).all())
-          consider(ia);
+      // Few pairs: a scan of the boxes costs less than the grid's cell lists.
+      std::array<float, 6> reach;
+      for (int k = 0; k < 3; ++k) {
+        reach[k] = IndexedLines::round_up(sb_hi[k] + box_gap + 1e-9);
+        reach[3 + k] = IndexedLines::round_down(sb_lo[k] - box_gap - 1e-9);
+      }
+      const auto& c = indexed.box_columns;
+      const int na = static_cast<int>(usable_a.size());
+      for (int ia = 0; ia < na; ++ia)
+        overlap[ia] = (c[0][ia] <= reach[0]) & (c[1][ia] <= reach[1]) & (c[2][ia] <= reach[2]) &
+                      (c[3][ia] >= reach[3]) & (c[4][ia] >= reach[4]) & (c[5][ia] >= reach[5]);
+      for (int ia = 0; ia < na; ++ia)
+        if (overlap[ia]) consider(ia);
     } else {
       if (!indexed.grid) indexed.grid.emplace(usable_a, indexed.max_distance);
       indexed.grid->for_each_near(sb, consider);
