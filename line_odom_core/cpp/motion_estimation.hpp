@@ -70,8 +70,8 @@ struct MotionStats {
 // insufficient or degenerate data returns false, writes T_ab = init and fills stats describing why.
 // Pairs whose lines are closer to parallel than ~3 deg neither count as inliers nor enter the refinement.
 // 7L without segments: each pair gets two 2 m segments centred on the points where the lines come closest
-// under init. An `incumbent` motion (e.g. the refined prediction) is scored before any sample and stays the
-// estimate (best_solver -2) unless a sample beats it.
+// under init. An `incumbent` motion (e.g. the refined prediction) is scored before any sample; when no sample
+// beats it, the result is false with stats.best_solver -2 (the caller has the incumbent).
 bool estimate_motion(const Correspondences& data, const RigidTransform& init, const MotionOptions& options,
                      RigidTransform* T_ab, MotionStats* stats, const RigidTransform* incumbent = nullptr);
 
