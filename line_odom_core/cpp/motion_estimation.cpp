@@ -21,7 +21,6 @@ constexpr double kMinLineSine = 0.05;        // ~2.9 deg: closer to parallel, a 
 constexpr double kSegmentHalfLength = 1.0;   // 7L segments built from lines (m)
 constexpr int kLocalOptimisationIterations = 4;
 constexpr int kPretestMinPairs = 400;        // pre-test only above this many line pairs
-constexpr size_t kChanceSamplePairs = 512;   // pairs the chance support is estimated on
 constexpr int kBoundCheckStride = 32;
 constexpr std::uint64_t kShuffleSeedSalt = 0x5bd1e9955bd1e995ULL;
 
@@ -313,22 +312,16 @@ double perturbed_inlier_weight(const Correspondences& w, const RigidTransform& T
     if (inlier[j]) r2 += w.lines_a[j].closest_point_to_origin().squaredNorm(), ++n;
   const double push = 20.0 * threshold;
   const double turn = push / std::max(1.0, n > 0 ? std::sqrt(r2 / n) : 1.0);
-  // Counted on a random subset (the pairs are in random order) and scaled to all pairs.
-  const size_t sample = std::min(w.lines_a.size(), kChanceSamplePairs);
-  double sample_weight = 0.0, all_weight = 0.0;
-  for (size_t j = 0; j < w.lines_a.size(); ++j) (j < sample ? sample_weight : all_weight) += w.weights[j];
-  all_weight += sample_weight;
-  if (!(sample_weight > 0.0)) return 0.0;
   double total = 0.0;
   for (int k = 0; k < 8; ++k) {
     const Vec3 s((k & 1) ? 1.0 : -1.0, (k & 2) ? 1.0 : -1.0, (k & 4) ? 1.0 : -1.0);
     Vec6 xi;
     xi << push * s / std::sqrt(3.0), turn * Vec3(s.y(), -s.z(), s.x()) / std::sqrt(3.0);
     const RigidTransform P = se3_exp(xi) * T;
-    for (size_t j = 0; j < sample; ++j)
+    for (size_t j = 0; j < w.lines_a.size(); ++j)
       if (line_pair_is_inlier(w.lines_a[j], w.lines_b[j].moved(P), threshold, kMinLineSine)) total += w.weights[j];
   }
-  return total / 8.0 * (all_weight / sample_weight);
+  return total / 8.0;
 }
 
 RefineOptions refine_options_from(const MotionOptions& o) {
