@@ -169,12 +169,10 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     return deviation.t.norm() <= reg.max_translation &&
            rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
   };
-  stage = Stopwatch();
-  CandidateIndex index(prev, copt.max_distance);  // the passes' distances only shrink
-  st->ms.candidates += stage.ms();
   for (int pass = 0; pass < reg.passes; ++pass) {
     stage = Stopwatch();
-    build_candidates(prev, cur, best, copt, &corr, &cstats, &index);
+    // A partner-search index per pass: at full resolution the grid of the shrinking distance is worth its build.
+    build_candidates(prev, cur, best, copt, &corr, &cstats);
     st->ms.candidates += stage.ms();
     st->candidates = cstats.line_pairs;
     st->plane_candidates = cstats.plane_pairs;
