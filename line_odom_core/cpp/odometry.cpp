@@ -195,17 +195,19 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
               sane(estimate) && ms.inliers >= reg.min_inliers;
     st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
-    if (ok && refine_converged && guessed && ms.best_solver >= 0) {
+    int sample_pairs = 0, guess_pairs = 0;
+    double score_ransac = ok ? score_motion(corr, estimate, thr, ropt.min_line_sine, &sample_pairs) : -1.0;
+    const double score_guess = refine_converged ? score_motion(corr, refined.T, thr, ropt.min_line_sine, &guess_pairs)
+                                                : -1.0;
+    if (ok && refine_converged && guessed && ms.best_solver >= 0 &&
+        sample_pairs < reg.min_sample_pair_share * guess_pairs) {
       // A sample that out-weighs the refined guess on a few heavily weighted (small) normal clusters while losing
       // the pairs of the others is a wrong motion, not a correction: a right one keeps those pairs too.
-      int sample_pairs = 0, guess_pairs = 0;
-      score_motion(corr, estimate, thr, ropt.min_line_sine, &sample_pairs);
-      score_motion(corr, refined.T, thr, ropt.min_line_sine, &guess_pairs);
-      ok = sample_pairs >= reg.min_sample_pair_share * guess_pairs;
+      ok = false;
+      score_ransac = -1.0;
     }
-    const double score_prior = have ? score_motion(corr, best, thr) : -1.0;
-    const double score_ransac = ok ? score_motion(corr, estimate, thr) : -1.0;
-    const double score_refined = refined_ok ? score_motion(corr, refined.T, thr) : -1.0;
+    const double score_prior = have ? score_motion(corr, best, thr, ropt.min_line_sine) : -1.0;
+    const double score_refined = refined_ok ? score_guess : -1.0;
     st->ms.ransac += stage.ms();
 
     copt.max_distance *= reg.pass_distance_scale;
