@@ -5,7 +5,6 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
-#include <memory>
 #include <optional>
 #include <utility>
 
@@ -162,20 +161,6 @@ struct IndexedLines {
   }
 };
 
-}  // namespace
-
-struct CandidateIndex::Lines {
-  IndexedLines h, v;
-};
-
-CandidateIndex::CandidateIndex(const ScanFeatures& a, double max_distance)
-    : lines_(std::make_unique<Lines>(Lines{IndexedLines(a.h_lines, max_distance), IndexedLines(a.v_lines, max_distance)})),
-      max_distance_(max_distance) {}
-
-CandidateIndex::~CandidateIndex() = default;
-
-namespace {
-
 // Pairs of lines of frame a (indexed) with lines_b (frame b, moved into a by T) that pass the filters.
 void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b, const RigidTransform& T,
                  const CandidateOptions& opt, std::vector<LinePair>* out) {
@@ -277,17 +262,12 @@ double segment_distance(const Segment& s1, const Segment& s2) {
 }
 
 void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
-                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats,
-                      CandidateIndex* index) {
+                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats) {
   *out = Correspondences{};
-  std::unique_ptr<CandidateIndex> own_index;
-  if (!index || index->max_distance() < options.max_distance) {
-    own_index = std::make_unique<CandidateIndex>(a, options.max_distance);
-    index = own_index.get();
-  }
+  IndexedLines h_a(a.h_lines, options.max_distance), v_a(a.v_lines, options.max_distance);
   std::vector<LinePair> pairs;
-  match_lines(index->lines_->h, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
-  match_lines(index->lines_->v, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
+  match_lines(h_a, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
+  match_lines(v_a, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
 
   // Cluster of the pair: the previous frame's normal cluster (paper §6.3), else the current frame's.
   std::array<int, 4> counts{};

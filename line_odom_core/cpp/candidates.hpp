@@ -4,7 +4,6 @@
 // the other plane. Weights are the inverse size of the pair's normal cluster (1 for pairs without a normal).
 #pragma once
 
-#include <memory>
 #include <vector>
 
 #include "motion_estimation.hpp"
@@ -28,33 +27,13 @@ struct CandidateStats {
   std::array<int, 4> cluster_pairs{};  // pairs per normal cluster 0..2 and unknown (index 3)
 };
 
-// The H- and V-lines of frame a bucketed for the partner search of build_candidates within max_distance; one
-// index serves every pass over the same frame a whose distance is at most that (paper §6.3's shrinking passes).
-class CandidateIndex {
- public:
-  CandidateIndex(const ScanFeatures& a, double max_distance);
-  ~CandidateIndex();
-  CandidateIndex(const CandidateIndex&) = delete;
-  CandidateIndex& operator=(const CandidateIndex&) = delete;
-  double max_distance() const { return max_distance_; }
-
- private:
-  friend void build_candidates(const ScanFeatures&, const ScanFeatures&, const RigidTransform&,
-                               const CandidateOptions&, Correspondences*, CandidateStats*, CandidateIndex*);
-  struct Lines;
-  std::unique_ptr<Lines> lines_;
-  double max_distance_;
-};
-
 // Closest distance between two 3D segments.
 double segment_distance(const Segment& s1, const Segment& s2);
 
 // Frame a = previous scan, b = current scan; T_ab_guess maps b into a. Fills `out` (line pairs with
-// segments, weights and clusters; plane pairs) in a deterministic order. `index` (of a, built for at least
-// options.max_distance) saves rebuilding the partner search; without it one is built for this call.
+// segments, weights and clusters; plane pairs) in a deterministic order.
 void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
-                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr,
-                      CandidateIndex* index = nullptr);
+                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr);
 
 // Weighted count of candidate line pairs that meet within `threshold` under T_ab (paper §6.3 inlier counting);
 // pairs closer to parallel than min_sine (sine of their angle) do not count.

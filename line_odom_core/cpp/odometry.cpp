@@ -171,7 +171,6 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   };
   for (int pass = 0; pass < reg.passes; ++pass) {
     stage = Stopwatch();
-    // A partner-search index per pass: at full resolution the grid of the shrinking distance is worth its build.
     build_candidates(prev, cur, best, copt, &corr, &cstats);
     st->ms.candidates += stage.ms();
     st->candidates = cstats.line_pairs;
