@@ -329,25 +329,4 @@ void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidT
   }
 }
 
-double score_motion(const Correspondences& candidates, const RigidTransform& T_ab, double threshold,
-                    double min_sine, int* inliers) {
-  const size_t n = std::min(candidates.lines_a.size(), candidates.lines_b.size());
-  const bool weighted = candidates.weights.size() == n;
-  const double th2 = threshold * threshold, min_s2 = min_sine * min_sine;
-  double score = 0.0;
-  int count = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const PluckerLine& a = candidates.lines_a[i];
-    const PluckerLine b = candidates.lines_b[i].moved(T_ab);
-    const double f = reciprocal_product(a, b);
-    const double s2 = a.d.cross(b.d).squaredNorm();
-    if (s2 >= min_s2 && f * f < th2 * s2) {
-      score += weighted ? candidates.weights[i] : 1.0;
-      ++count;
-    }
-  }
-  if (inliers) *inliers = count;
-  return score;
-}
-
 }  // namespace line_odom

@@ -35,9 +35,4 @@ double segment_distance(const Segment& s1, const Segment& s2);
 void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
                       const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr);
 
-// Weighted count of candidate line pairs that meet within `threshold` under T_ab (paper §6.3 inlier counting);
-// pairs closer to parallel than min_sine (sine of their angle) do not count.
-double score_motion(const Correspondences& candidates, const RigidTransform& T_ab, double threshold,
-                    double min_sine = 0.05, int* inliers = nullptr);
-
 }  // namespace line_odom

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <utility>
 
+#include "line_pair_table.hpp"
 #include "ransac.hpp"
 #include "refine.hpp"
 #include "solvers/solve_1l2p.hpp"
@@ -49,6 +50,7 @@ void closest_points(const PluckerLine& l1, const PluckerLine& l2, Vec3* p1, Vec3
 // estimator needs filled in: weights, clusters, segments.
 struct PreparedData {
   Correspondences work;
+  LinePairTable pairs;  // the line pairs of `work`
   std::vector<int> line_origin, plane_origin;  // input index of each work pair
   std::array<std::vector<int>, 3> cluster_members;
   std::vector<double> suffix_weight;  // sum of weights from i to the end (size n + 1)
@@ -112,6 +114,7 @@ void prepare(const Correspondences& in, const RigidTransform& init, std::uint64_
       w.segments_b[j] = {pb - kSegmentHalfLength * lb[i].d, pb + kSegmentHalfLength * lb[i].d};
     }
   }
+  out->pairs = LinePairTable(w);
   out->suffix_weight.assign(k + 1, 0.0);
   for (size_t j = k; j > 0; --j) out->suffix_weight[j - 1] = out->suffix_weight[j] + w.weights[j - 1];
   out->total_line_weight = out->suffix_weight[0];
@@ -147,7 +150,6 @@ class MotionHybridEstimator {
     n_planes_ = static_cast<int>(w_.planes_a.size());
     lo_options_.iterations = kLocalOptimisationIterations;
     lo_options_.compute_covariance = false;
-    th2_ = options.inlier_threshold * options.inlier_threshold;
     plane_cos_ = std::cos(refine_options.plane_angle_threshold);
     pretest_size_ = (options.pretest && n_lines_ >= kPretestMinPairs) ? std::max(kPretestMinPairs / 2, n_lines_ / 8)
                                                                       : 0;
@@ -224,25 +226,25 @@ class MotionHybridEstimator {
   RansacScore score(const Model& T, double to_beat) {
     RansacScore sc;
     if (!T.is_finite()) return sc;
-    const Mat3& R = T.R;
-    const Vec3& t = T.t;
     const double best_fraction = to_beat > 0.0 && d_.total_line_weight > 0.0 ? to_beat / d_.total_line_weight : 0.0;
     double weight = 0.0;
     int count = 0;
-    const double min_s2 = kMinLineSine * kMinLineSine;
+    std::uint8_t meets[MovedPairBlock::kSize];
+    int block_begin = 0, block_end = 0;
     for (int i = 0; i < n_lines_; ++i) {
       if (i == pretest_size_ && best_fraction > 0.0) {
         const double prefix = d_.total_line_weight - d_.suffix_weight[i];
         if (prefix > 0.0 && weight < 0.5 * best_fraction * prefix) return partial(sc, weight, count);
       }
       if ((i % kBoundCheckStride) == 0 && weight + d_.suffix_weight[i] <= to_beat) return partial(sc, weight, count);
-      const PluckerLine& a = w_.lines_a[i];
-      const PluckerLine& b = w_.lines_b[i];
-      const Vec3 db = R * b.d;
-      const Vec3 mb = R * b.m + t.cross(db);
-      const double f = a.d.dot(mb) + db.dot(a.m);
-      const double s2 = a.d.cross(db).squaredNorm();
-      if (s2 >= min_s2 && f * f < th2_ * s2) {
+      if (i == block_end) {
+        // Blocks end at the pre-test, so a hypothesis it drops costs no more pairs than it read.
+        block_begin = i;
+        block_end = std::min(n_lines_, i + MovedPairBlock::kSize);
+        if (i < pretest_size_ && best_fraction > 0.0) block_end = std::min(block_end, pretest_size_);
+        d_.pairs.inlier_mask(T, options_.inlier_threshold, kMinLineSine, block_begin, block_end, meets);
+      }
+      if (meets[i - block_begin]) {
         weight += w_.weights[i];
         ++count;
       }
@@ -263,7 +265,7 @@ class MotionHybridEstimator {
 
   void refine(Model* T) {
     RefineResult r;
-    if (refine_motion(w_, *T, lo_options_, &r) && r.T.is_finite()) *T = r.T;
+    if (refine_motion(w_, d_.pairs, *T, lo_options_, &r) && r.T.is_finite()) *T = r.T;
   }
 
  private:
@@ -297,29 +299,30 @@ class MotionHybridEstimator {
   RefineOptions lo_options_;
   Solve7LOptions solve_7l_;
   int n_lines_ = 0, n_planes_ = 0, pretest_size_ = 0;
-  double th2_ = 0.0, plane_cos_ = 1.0;
+  double plane_cos_ = 1.0;
 };
 
 // Mean line inlier weight of T pushed by 20 inlier thresholds along the 8 diagonals (+-1, +-1, +-1)/sqrt(3) and
 // turned about a second diagonal by the angle that moves the inlier lines' mean distance from the origin as
 // far: the support a wrong pose gets by chance. Diagonals, not axes: pairs on a plane keep intersecting under
 // any shift within that plane, and scenes tend to have planes through the axes.
-double perturbed_inlier_weight(const Correspondences& w, const RigidTransform& T, const std::vector<std::uint8_t>& inlier,
-                               double threshold) {
+double perturbed_inlier_weight(const Correspondences& w, const LinePairTable& pairs, const RigidTransform& T,
+                               const std::vector<std::uint8_t>& inlier, double threshold) {
   double r2 = 0.0;
   int n = 0;
   for (size_t j = 0; j < w.lines_a.size(); ++j)
     if (inlier[j]) r2 += w.lines_a[j].closest_point_to_origin().squaredNorm(), ++n;
   const double push = 20.0 * threshold;
   const double turn = push / std::max(1.0, n > 0 ? std::sqrt(r2 / n) : 1.0);
+  std::vector<std::uint8_t> meets(pairs.size());
   double total = 0.0;
   for (int k = 0; k < 8; ++k) {
     const Vec3 s((k & 1) ? 1.0 : -1.0, (k & 2) ? 1.0 : -1.0, (k & 4) ? 1.0 : -1.0);
     Vec6 xi;
     xi << push * s / std::sqrt(3.0), turn * Vec3(s.y(), -s.z(), s.x()) / std::sqrt(3.0);
-    const RigidTransform P = se3_exp(xi) * T;
-    for (size_t j = 0; j < w.lines_a.size(); ++j)
-      if (line_pair_is_inlier(w.lines_a[j], w.lines_b[j].moved(P), threshold, kMinLineSine)) total += w.weights[j];
+    pairs.inlier_mask(se3_exp(xi) * T, threshold, kMinLineSine, 0, pairs.size(), meets.data());
+    for (int j = 0; j < pairs.size(); ++j)
+      if (meets[j]) total += pairs.weight(j);
   }
   return total / 8.0;
 }
@@ -374,17 +377,18 @@ bool estimate_motion(const Correspondences& data, const RigidTransform& init, co
   }
 
   RefineResult refined;
-  const bool refined_ok = refine_motion(prepared.work, best, refine_options, &refined);
+  const bool refined_ok = refine_motion(prepared.work, prepared.pairs, best, refine_options, &refined);
   const RigidTransform final_T = refined_ok ? refined.T : best;
   copy_refinement_stats(refined, &stats);
   if (refined_ok) stats.covariance = refined.covariance;
 
   const Correspondences& w = prepared.work;
   std::vector<std::uint8_t> work_inlier(w.lines_a.size(), 0);
-  for (size_t j = 0; j < w.lines_a.size(); ++j)
-    work_inlier[j] = w.weights[j] > 0.0 && line_pair_is_inlier(w.lines_a[j], w.lines_b[j].moved(final_T),
-                                                                options.inlier_threshold, kMinLineSine);
-  stats.perturbed_inlier_weight = perturbed_inlier_weight(w, final_T, work_inlier, options.inlier_threshold);
+  prepared.pairs.inlier_mask(final_T, options.inlier_threshold, kMinLineSine, 0, prepared.pairs.size(),
+                             work_inlier.data());
+  for (size_t j = 0; j < w.lines_a.size(); ++j) work_inlier[j] = work_inlier[j] && w.weights[j] > 0.0;
+  stats.perturbed_inlier_weight =
+      perturbed_inlier_weight(w, prepared.pairs, final_T, work_inlier, options.inlier_threshold);
   stats.line_inlier_mask.assign(std::min(data.lines_a.size(), data.lines_b.size()), 0);
   for (size_t j = 0; j < w.lines_a.size(); ++j) stats.line_inlier_mask[prepared.line_origin[j]] = work_inlier[j];
   stats.plane_inlier_mask.assign(std::min(data.planes_a.size(), data.planes_b.size()), 0);

@@ -6,6 +6,7 @@
 #include <numeric>
 #include <stdexcept>
 
+#include "line_pair_table.hpp"
 #include "refine.hpp"
 
 namespace line_odom {
@@ -177,6 +178,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     st->plane_candidates = cstats.plane_pairs;
 
     stage = Stopwatch();
+    const LinePairTable pairs(corr);
     MotionOptions mopt = config_.ransac;
     mopt.seed = mix_seed(config_.seed, static_cast<std::uint64_t>(frames_), static_cast<std::uint64_t>(pass));
     // The guess itself, refined on this pass's candidates, competes with the RANSAC samples: it is scored first
@@ -195,8 +197,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
     int sample_pairs = 0, guess_pairs = 0;
-    double score_ransac = ok ? score_motion(corr, estimate, thr, ropt.min_line_sine, &sample_pairs) : -1.0;
-    const double score_guess = refine_converged ? score_motion(corr, refined.T, thr, ropt.min_line_sine, &guess_pairs)
+    double score_ransac = ok ? score_motion(pairs, estimate, thr, ropt.min_line_sine, &sample_pairs) : -1.0;
+    const double score_guess = refine_converged ? score_motion(pairs, refined.T, thr, ropt.min_line_sine, &guess_pairs)
                                                 : -1.0;
     if (ok && refine_converged && guessed && ms.best_solver >= 0 &&
         sample_pairs < reg.min_sample_pair_share * guess_pairs) {
@@ -205,7 +207,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
       ok = false;
       score_ransac = -1.0;
     }
-    const double score_prior = have ? score_motion(corr, best, thr, ropt.min_line_sine) : -1.0;
+    const double score_prior = have ? score_motion(pairs, best, thr, ropt.min_line_sine) : -1.0;
     const double score_refined = refined_ok ? score_guess : -1.0;
     st->ms.ransac += stage.ms();
 

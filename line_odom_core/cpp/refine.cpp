@@ -3,6 +3,8 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <vector>
 
 namespace line_odom {
 namespace {
@@ -31,43 +33,46 @@ struct NormalEquations {
   int plane_inliers = 0;
 };
 
-NormalEquations accumulate(const Correspondences& data, const RigidTransform& T, const RefineOptions& o,
-                           double weight_scale) {
+NormalEquations accumulate(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T,
+                           const RefineOptions& o, double weight_scale) {
   NormalEquations ne;
   const double huber = o.huber_delta > 0.0 ? o.huber_delta : o.line_threshold;
   const double min_s2 = o.min_line_sine * o.min_line_sine;
   const double th2 = o.line_threshold * o.line_threshold;
-  const bool weighted = !data.weights.empty();
-  const size_t n = data.lines_a.size();
-  for (size_t i = 0; i < n; ++i) {
-    const PluckerLine& a = data.lines_a[i];
-    const double w_pair = weighted ? data.weights[i] : 1.0;
-    if (!(w_pair > 0.0)) continue;
-    const PluckerLine b = data.lines_b[i].moved(T);
-    const Vec3 c = a.d.cross(b.d);
-    const double s2 = c.squaredNorm();
-    if (s2 < min_s2) continue;
-    const double f = a.d.dot(b.m) + b.d.dot(a.m);
-    if (f * f >= th2 * s2) continue;
-    const double inv_s = 1.0 / std::sqrt(s2);  // one division per pair, not seven
-    const double r = f * inv_s;
-    // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held.
-    Vec6 J;
-    J.head<3>() = -inv_s * c;
-    J.tail<3>() = inv_s * (b.m.cross(a.d) + b.d.cross(a.m));
-    const double w = w_pair * weight_scale * huber_weight(std::abs(r), huber);
-    // Lower triangle of H += w J J^T, column by column as Eigen's rankUpdate does, without its call overhead.
-    for (int c = 0; c < 6; ++c) {
-      const double wj = w * J[c];
-      for (int r = c; r < 6; ++r) ne.H(r, c) += wj * J[r];
+  MovedPairBlock block;
+  for (int begin = 0; begin < pairs.size(); begin += MovedPairBlock::kSize) {
+    const int count = pairs.move_block(T, begin, pairs.size(), &block);
+    for (int k = 0; k < count; ++k) {
+      const int i = begin + k;
+      const double w_pair = pairs.weight(i);
+      if (!(w_pair > 0.0)) continue;
+      const double s2 = block.s2[k];
+      if (s2 < min_s2) continue;
+      const double f = block.f[k];
+      if (f * f >= th2 * s2) continue;
+      const double inv_s = 1.0 / std::sqrt(s2);  // one division per pair, not seven
+      const double r = f * inv_s;
+      const Vec3 c(block.c[0][k], block.c[1][k], block.c[2][k]);
+      const Vec3 bd(block.bd[0][k], block.bd[1][k], block.bd[2][k]);
+      const Vec3 bm(block.bm[0][k], block.bm[1][k], block.bm[2][k]);
+      // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held.
+      Vec6 J;
+      J.head<3>() = -inv_s * c;
+      J.tail<3>() = inv_s * (bm.cross(pairs.a_d(i)) + bd.cross(pairs.a_m(i)));
+      const double w = w_pair * weight_scale * huber_weight(std::abs(r), huber);
+      // Lower triangle of H += w J J^T, column by column as Eigen's rankUpdate does, without its call overhead.
+      for (int col = 0; col < 6; ++col) {
+        const double wj = w * J[col];
+        for (int row = col; row < 6; ++row) ne.H(row, col) += wj * J[row];
+      }
+      ne.g.noalias() += w * r * J;
+      ne.weighted_sq += w * r * r;
+      ne.weight_sum += w_pair * weight_scale;
+      ne.residuals += 1;
+      ne.line_inliers += 1;
+      ne.line_inlier_weight += w_pair;
+      ne.line_sq += r * r;
     }
-    ne.g.noalias() += w * r * J;
-    ne.weighted_sq += w * r * r;
-    ne.weight_sum += w_pair * weight_scale;
-    ne.residuals += 1;
-    ne.line_inliers += 1;
-    ne.line_inlier_weight += w_pair;
-    ne.line_sq += r * r;
   }
   const double k_angle = o.line_threshold / o.plane_angle_threshold;
   const double k_dist = o.line_threshold / o.plane_distance_threshold;
@@ -139,15 +144,6 @@ RigidTransform se3_exp(const Vec6& xi) {
   return T;
 }
 
-bool line_pair_is_inlier(const PluckerLine& a, const PluckerLine& b_moved, double threshold, double min_sine,
-                         double* distance) {
-  const double s2 = a.d.cross(b_moved.d).squaredNorm();
-  if (s2 < min_sine * min_sine) return false;
-  const double f = a.d.dot(b_moved.m) + b_moved.d.dot(a.m);
-  if (distance) *distance = f / std::sqrt(s2);
-  return f * f < threshold * threshold * s2;
-}
-
 bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_threshold, double distance_threshold) {
   return a.n.dot(b_moved.n) > std::cos(angle_threshold) && std::abs(b_moved.delta - a.delta) < distance_threshold;
 }
@@ -164,13 +160,15 @@ void copy_refinement_stats(const RefineResult& refined, MotionStats* stats) {
 double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine,
                     double* pair_share) {
   if (pair_share) *pair_share = 0.0;
-  const size_t n = std::min(data.lines_a.size(), data.lines_b.size());
-  auto weight = [&](size_t j) { return data.weights.size() == n ? data.weights[j] : 1.0; };
-  std::vector<size_t> inliers;
+  const LinePairTable pairs(data);
+  const int n = pairs.size();
+  std::vector<std::uint8_t> meets(n);
+  pairs.inlier_mask(T, threshold, min_sine, 0, n, meets.data());
+  std::vector<int> inliers;
   double total = 0.0, r2 = 0.0;
-  for (size_t j = 0; j < n; ++j) {
-    const double w = weight(j);
-    if (w > 0.0 && line_pair_is_inlier(data.lines_a[j], data.lines_b[j].moved(T), threshold, min_sine)) {
+  for (int j = 0; j < n; ++j) {
+    const double w = pairs.weight(j);
+    if (w > 0.0 && meets[j]) {
       inliers.push_back(j);
       total += w;
       r2 += data.lines_a[j].closest_point_to_origin().squaredNorm();
@@ -186,10 +184,11 @@ double axis_support(const Correspondences& data, const RigidTransform& T, double
       Vec6 xi = Vec6::Zero();
       xi[axis] = sign * (axis < 3 ? push : turn);
       const RigidTransform P = se3_exp(xi) * T;
+      pairs.inlier_mask(P, threshold, min_sine, 0, n, meets.data());
       double kept = 0.0, kept_pairs = 0.0;
-      for (const size_t j : inliers) {
-        if (line_pair_is_inlier(data.lines_a[j], data.lines_b[j].moved(P), threshold, min_sine)) {
-          kept += weight(j);
+      for (const int j : inliers) {
+        if (meets[j]) {
+          kept += pairs.weight(j);
           kept_pairs += 1.0;
         }
       }
@@ -203,6 +202,11 @@ double axis_support(const Correspondences& data, const RigidTransform& T, double
 
 bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
                    RefineResult* result) {
+  return refine_motion(data, LinePairTable(data), T0, options, result);
+}
+
+bool refine_motion(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,
+                   const RefineOptions& options, RefineResult* result) {
   RefineResult res;
   res.T = T0;
   // Pair weights are relative: scale them to mean 1 over all line pairs so sigma^2 stays in metres^2.
@@ -218,7 +222,7 @@ bool refine_motion(const Correspondences& data, const RigidTransform& T0, const 
   RigidTransform T = T0;
   bool ok = true;
   for (int it = 0; it < options.iterations; ++it) {
-    const NormalEquations ne = accumulate(data, T, options, weight_scale);
+    const NormalEquations ne = accumulate(data, pairs, T, options, weight_scale);
     if (ne.residuals < 6) {
       ok = false;
       break;
@@ -235,7 +239,7 @@ bool refine_motion(const Correspondences& data, const RigidTransform& T0, const 
     if (dx.head<3>().norm() < kConvergedTranslation && dx.tail<3>().norm() < kConvergedRotation) break;
   }
 
-  const NormalEquations ne = accumulate(data, ok ? T : T0, options, weight_scale);
+  const NormalEquations ne = accumulate(data, pairs, ok ? T : T0, options, weight_scale);
   if (!ok || ne.residuals < 6 || !T.is_finite()) {
     res.T = T0;
     res.line_inliers = ne.line_inliers;

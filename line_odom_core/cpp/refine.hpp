@@ -8,6 +8,7 @@
 // pair weight; covariance = sigma^2 (J^T W J)^-1 with sigma^2 from the weighted residuals.
 #pragma once
 
+#include "line_pair_table.hpp"
 #include "motion_estimation.hpp"
 #include "types.hpp"
 
@@ -39,9 +40,7 @@ struct RefineResult {
 // Motion of a left perturbation: exp(xi) as a rigid transform, xi = (v, w).
 RigidTransform se3_exp(const Vec6& xi);
 
-// Inlier tests under T (same gates as the refinement).
-bool line_pair_is_inlier(const PluckerLine& a, const PluckerLine& b_moved, double threshold, double min_sine,
-                         double* distance = nullptr);
+// Plane inlier test under T (same gates as the refinement; line pairs: LinePairTable::inlier_mask).
 bool plane_pair_is_inlier(const Plane& a, const Plane& b_moved, double angle_threshold, double distance_threshold);
 
 // The refinement's support and quality into motion statistics (inliers, weights, rms, condition, degenerate;
@@ -61,5 +60,8 @@ double axis_support(const Correspondences& data, const RigidTransform& T, double
 // when fewer residuals than unknowns remain or a step is not finite; never writes NaN.
 bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
                    RefineResult* result);
+// The same with the line pairs of `data` already tabled (the planes still come from `data`).
+bool refine_motion(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,
+                   const RefineOptions& options, RefineResult* result);
 
 }  // namespace line_odom

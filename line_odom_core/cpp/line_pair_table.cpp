@@ -1,0 +1,163 @@
+#include "line_pair_table.hpp"
+
+#include <algorithm>
+
+// An AVX2 copy of the pair loops next to the baseline one, chosen at load time, so a package built on one x86
+// machine runs on another. No "fma": contracting a*b + c would change the last bits against the scalar paths.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define LINE_ODOM_VECTOR_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define LINE_ODOM_VECTOR_CLONES
+#endif
+
+namespace line_odom {
+namespace {
+
+struct FlatMotion {
+  double r[9];  // row-major R
+  double t[3];
+};
+
+FlatMotion flatten(const RigidTransform& T) {
+  FlatMotion m;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) m.r[3 * i + j] = T.R(i, j);
+    m.t[i] = T.t[i];
+  }
+  return m;
+}
+
+struct PairTerms {
+  double d0, d1, d2;  // d_b'
+  double m0, m1, m2;  // m_b'
+  double c0, c1, c2;  // d_a x d_b'
+  double f, s2;
+};
+
+// The 12 coordinate rows of a table.
+struct Rows {
+  const double* ad[3];
+  const double* am[3];
+  const double* bd[3];
+  const double* bm[3];
+};
+
+Rows rows_of(const double* coords, long n) {
+  Rows rows;
+  for (int k = 0; k < 3; ++k) {
+    rows.ad[k] = coords + k * n;
+    rows.am[k] = coords + (3 + k) * n;
+    rows.bd[k] = coords + (6 + k) * n;
+    rows.bm[k] = coords + (9 + k) * n;
+  }
+  return rows;
+}
+
+// PluckerLine::moved, the cross product and reciprocal_product of pair i, in the order Eigen 3.4 evaluates them
+// (it sums the third row of a 3x3 product the other way round). Scalars only, so the loops below vectorize.
+inline PairTerms pair_terms(const Rows& rows, const FlatMotion& M, long i) {
+  const double* r = M.r;
+  const double* t = M.t;
+  PairTerms o;
+  const double dx = rows.bd[0][i], dy = rows.bd[1][i], dz = rows.bd[2][i];
+  o.d0 = r[0] * dx + r[1] * dy + r[2] * dz;
+  o.d1 = r[3] * dx + r[4] * dy + r[5] * dz;
+  o.d2 = r[6] * dx + (r[7] * dy + r[8] * dz);
+  const double mx = rows.bm[0][i], my = rows.bm[1][i], mz = rows.bm[2][i];
+  o.m0 = (r[0] * mx + r[1] * my + r[2] * mz) + (t[1] * o.d2 - t[2] * o.d1);
+  o.m1 = (r[3] * mx + r[4] * my + r[5] * mz) + (t[2] * o.d0 - t[0] * o.d2);
+  o.m2 = (r[6] * mx + (r[7] * my + r[8] * mz)) + (t[0] * o.d1 - t[1] * o.d0);
+  const double ax = rows.ad[0][i], ay = rows.ad[1][i], az = rows.ad[2][i];
+  o.f = (ax * o.m0 + ay * o.m1 + az * o.m2) + (o.d0 * rows.am[0][i] + o.d1 * rows.am[1][i] + o.d2 * rows.am[2][i]);
+  o.c0 = ay * o.d2 - az * o.d1;
+  o.c1 = az * o.d0 - ax * o.d2;
+  o.c2 = ax * o.d1 - ay * o.d0;
+  o.s2 = o.c0 * o.c0 + o.c1 * o.c1 + o.c2 * o.c2;
+  return o;
+}
+
+// ivdep: the outputs never overlap the table (GCC otherwise gives up on the run-time alias checks).
+LINE_ODOM_VECTOR_CLONES
+void mask_kernel(const Rows rows, const FlatMotion motion, double th2, double min_s2, long begin, long end,
+                 std::uint8_t* mask) {
+#pragma GCC ivdep
+  for (long i = begin; i < end; ++i) {
+    const PairTerms o = pair_terms(rows, motion, i);
+    mask[i - begin] = static_cast<std::uint8_t>((o.s2 >= min_s2) & (o.f * o.f < th2 * o.s2));
+  }
+}
+
+LINE_ODOM_VECTOR_CLONES
+void move_kernel(const Rows rows, const FlatMotion motion, long begin, long end, MovedPairBlock* out) {
+#pragma GCC ivdep
+  for (long i = begin; i < end; ++i) {
+    const PairTerms o = pair_terms(rows, motion, i);
+    const long k = i - begin;
+    out->bd[0][k] = o.d0;
+    out->bd[1][k] = o.d1;
+    out->bd[2][k] = o.d2;
+    out->bm[0][k] = o.m0;
+    out->bm[1][k] = o.m1;
+    out->bm[2][k] = o.m2;
+    out->c[0][k] = o.c0;
+    out->c[1][k] = o.c1;
+    out->c[2][k] = o.c2;
+    out->f[k] = o.f;
+    out->s2[k] = o.s2;
+  }
+}
+
+}  // namespace
+
+LinePairTable::LinePairTable(const Correspondences& data)
+    : n_(static_cast<int>(std::min(data.lines_a.size(), data.lines_b.size()))) {
+  coords_.resize(12 * static_cast<size_t>(n_));
+  weights_.assign(n_, 1.0);
+  const bool weighted = data.weights.size() == static_cast<size_t>(n_);
+  for (int i = 0; i < n_; ++i) {
+    const PluckerLine& a = data.lines_a[i];
+    const PluckerLine& b = data.lines_b[i];
+    for (int k = 0; k < 3; ++k) {
+      coords_[static_cast<size_t>(k) * n_ + i] = a.d[k];
+      coords_[static_cast<size_t>(3 + k) * n_ + i] = a.m[k];
+      coords_[static_cast<size_t>(6 + k) * n_ + i] = b.d[k];
+      coords_[static_cast<size_t>(9 + k) * n_ + i] = b.m[k];
+    }
+    if (weighted) weights_[i] = data.weights[i];
+  }
+}
+
+void LinePairTable::inlier_mask(const RigidTransform& T, double threshold, double min_sine, int begin, int end,
+                                std::uint8_t* mask) const {
+  mask_kernel(rows_of(coords_.data(), n_), flatten(T), threshold * threshold, min_sine * min_sine, std::max(0, begin),
+              std::min(end, n_), mask);
+}
+
+int LinePairTable::move_block(const RigidTransform& T, int begin, int end, MovedPairBlock* out) const {
+  const int last = std::min({end, n_, begin + MovedPairBlock::kSize});
+  if (last <= begin) return 0;
+  move_kernel(rows_of(coords_.data(), n_), flatten(T), begin, last, out);
+  return last - begin;
+}
+
+double score_motion(const LinePairTable& pairs, const RigidTransform& T_ab, double threshold, double min_sine,
+                    int* inliers) {
+  std::uint8_t mask[MovedPairBlock::kSize];
+  double score = 0.0;
+  int count = 0;
+  for (int begin = 0; begin < pairs.size(); begin += MovedPairBlock::kSize) {
+    const int end = std::min(pairs.size(), begin + MovedPairBlock::kSize);
+    pairs.inlier_mask(T_ab, threshold, min_sine, begin, end, mask);
+    for (int i = begin; i < end; ++i)
+      if (mask[i - begin]) score += pairs.weight(i), ++count;
+  }
+  if (inliers) *inliers = count;
+  return score;
+}
+
+double score_motion(const Correspondences& candidates, const RigidTransform& T_ab, double threshold, double min_sine,
+                    int* inliers) {
+  return score_motion(LinePairTable(candidates), T_ab, threshold, min_sine, inliers);
+}
+
+}  // namespace line_odom

@@ -1,0 +1,58 @@
+// Candidate line pairs as a structure of arrays, so the intersection test (DESIGN.md §3: l_a and T l_b meet
+// iff the reciprocal product d_a.m_b' + d_b'.m_a vanishes) runs under one motion over a block of pairs in a
+// vectorizable loop. RANSAC (paper §6.3) tests every hypothesis on every pair and the refinement re-tests all
+// pairs at each iterate: these loops are most of a sparse frame's time. The arithmetic is the same, in the same
+// order, as PluckerLine::moved + reciprocal_product, so results do not depend on which path computed them.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "motion_estimation.hpp"
+#include "types.hpp"
+
+namespace line_odom {
+
+// b-lines moved by T and the pair terms for a block of pairs (index k = pair - begin).
+struct MovedPairBlock {
+  static constexpr int kSize = 256;
+  double bd[3][kSize];  // d_b' = R d_b
+  double bm[3][kSize];  // m_b' = R m_b + t x d_b'
+  double c[3][kSize];   // d_a x d_b'
+  double f[kSize];      // reciprocal product d_a.m_b' + d_b'.m_a
+  double s2[kSize];     // |d_a x d_b'|^2
+};
+
+class LinePairTable {
+ public:
+  LinePairTable() = default;
+  // Rows of lines_a / lines_b (up to the shorter) with data.weights (1 each when absent or of another size).
+  explicit LinePairTable(const Correspondences& data);
+
+  int size() const { return n_; }
+  double weight(int i) const { return weights_[i]; }
+  Vec3 a_d(int i) const { return {row(0)[i], row(1)[i], row(2)[i]}; }
+  Vec3 a_m(int i) const { return {row(3)[i], row(4)[i], row(5)[i]}; }
+
+  // mask[i - begin] = 1 iff pair i meets within `threshold` under T and |d_a x d_b'| >= min_sine,
+  // for i in [begin, end).
+  void inlier_mask(const RigidTransform& T, double threshold, double min_sine, int begin, int end,
+                   std::uint8_t* mask) const;
+  // Pairs [begin, min(end, begin + MovedPairBlock::kSize)) moved by T; returns the number filled.
+  int move_block(const RigidTransform& T, int begin, int end, MovedPairBlock* out) const;
+
+ private:
+  const double* row(int r) const { return coords_.data() + static_cast<size_t>(r) * n_; }
+  int n_ = 0;
+  std::vector<double> coords_;  // 12 rows of n: d_a, m_a, d_b, m_b (x y z each)
+  std::vector<double> weights_;
+};
+
+// Weighted count of pairs that meet within `threshold` under T_ab (paper §6.3 inlier counting); pairs closer to
+// parallel than min_sine (sine of their angle) do not count.
+double score_motion(const LinePairTable& pairs, const RigidTransform& T_ab, double threshold, double min_sine = 0.05,
+                    int* inliers = nullptr);
+double score_motion(const Correspondences& candidates, const RigidTransform& T_ab, double threshold,
+                    double min_sine = 0.05, int* inliers = nullptr);
+
+}  // namespace line_odom
