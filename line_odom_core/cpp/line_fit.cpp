@@ -4,8 +4,19 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <stdexcept>
 #include <string>
+
+// Hot loops compiled twice, for AVX2 and the baseline, picked at load time. AVX2 without FMA: the same IEEE
+// operations in either clone, so the same lines on every machine.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(LINE_FIT_NO_CLONES)
+#define LINE_FIT_CLONES __attribute__((target_clones("avx2", "default")))
+#define LINE_FIT_CLONES_FLATTEN __attribute__((target_clones("avx2", "default"), flatten))
+#else
+#define LINE_FIT_CLONES
+#define LINE_FIT_CLONES_FLATTEN __attribute__((flatten))
+#endif
 
 namespace line_odom {
 
@@ -90,9 +101,7 @@ void remove_point(Moments* m, const Vec3& p) { m->remove(p); }
 
 // Squared distances of points 1..n of X/Y/Z to the chord from point 0 to point n+1 over their squared
 // thresholds (1 / W), into R; returns the index (1..n) of the largest ratio above 1, -1 if none.
-// Structure-of-arrays loop that the compiler vectorizes; an AVX2 clone is picked at load time where the CPU
-// has it (the same IEEE operations per element, no FMA contraction: identical results, half the loop).
-__attribute__((target_clones("avx2", "default")))
+// Structure-of-arrays loop that the compiler vectorizes (AVX2 inside fit_pass's AVX2 clone).
 int chord_ratios(const double* __restrict X0, const double* __restrict Y0, const double* __restrict Z0,
                  const double* __restrict W, int n, double* __restrict R) {
   const double ax = X0[0], ay = Y0[0], az = Z0[0];
@@ -135,6 +144,35 @@ int chord_ratios(const double* __restrict X0, const double* __restrict Y0, const
   return 1 + i;
 }
 
+constexpr double kMargin = 1e-9;  // relative margin of the squared decision tests (see breaks_between)
+
+// The clear cases of ScanLineFitter::breaks_between for every pair of neighbouring points (j - 1, j), j = 1..n-1,
+// in one vectorizable pass (the same IEEE operations): code[j] 1 = break, 0 = none, 2 = close to a margin (the
+// caller decides it exactly).
+void break_codes(const double* __restrict X, const double* __restrict Y, const double* __restrict Z,
+                 const double* __restrict T, const int* __restrict P, int n, int max_gap, double sin2,
+                 std::int32_t* __restrict code) {
+  for (int j = 1; j < n; ++j) {
+    const double sx = X[j] - X[j - 1], sy = Y[j] - Y[j - 1], sz = Z[j] - Z[j - 1];
+    const double len2 = sx * sx + sy * sy + sz * sz;
+    const double tau = T[j - 1] < T[j] ? T[j] : T[j - 1];
+    const double tau2 = tau * tau;
+    const double wx = X[j - 1] + X[j], wy = Y[j - 1] + Y[j], wz = Z[j - 1] + Z[j];
+    const double cx = sy * wz - sz * wy, cy = sz * wx - sx * wz, cz = sx * wy - sy * wx;
+    const double lhs = cx * cx + cy * cy + cz * cz;
+    const double rhs = sin2 * len2 * (wx * wx + wy * wy + wz * wz);
+    // gap ? 1 : quiet ? 0 : near_tau ? 2 : jump ? 1 : smooth ? 0 : 2, without branches
+    const int gap = P[j] - P[j - 1] - 1 > max_gap;
+    const int quiet = len2 < tau2 * (1.0 - kMargin);
+    const int near_tau = len2 <= tau2 * (1.0 + kMargin);
+    const int jump = lhs < rhs * (1.0 - kMargin);
+    const int smooth = lhs > rhs * (1.0 + kMargin);
+    const int far = jump | ((1 - jump) & (1 - smooth)) << 1;
+    const int loud = near_tau << 1 | (1 - near_tau) * far;
+    code[j] = gap | (1 - gap) * (1 - quiet) * loud;
+  }
+}
+
 class ScanLineFitter {
   static constexpr int kEndChecks = 4;
 
@@ -153,9 +191,12 @@ class ScanLineFitter {
     count_ = n;
     if (static_cast<int>(is_skipped_.size()) < n) is_skipped_.resize(n);
     std::fill(is_skipped_.begin(), is_skipped_.begin() + n, 0);
+    if (static_cast<int>(break_code_.size()) < n) break_code_.resize(n);
+    break_codes(buf.x.data(), buf.y.data(), buf.z.data(), buf.tau.data(), buf.pos.data(), n, cfg_.max_gap,
+                sin2_min_incidence_, break_code_.data());
     int run_start = 0;
     for (int j = 1; j <= n; ++j) {
-      if (j == n || breaks_between(buf, j - 1, j)) {
+      if (j == n || (break_code_[j] == 1 || (break_code_[j] == 2 && breaks_between(buf, j - 1, j)))) {
         fit_run(buf, run_start, j - 1, min_points);
         run_start = j;
       }
@@ -430,30 +471,54 @@ class ScanLineFitter {
   const LineFitConfig& cfg_;
   const double sin_min_incidence_;
   const double sin2_min_incidence_;
-  static constexpr double kMargin = 1e-9;
   std::vector<std::pair<int, int>> stack_, pieces_;
   std::vector<CandidateLine> candidates_;
   std::vector<int> skipped_;
   std::vector<std::uint8_t> is_skipped_;
   std::vector<double> ratio_;
+  std::vector<std::int32_t> break_code_;
   bool fitted_ = false;
   int count_ = 0;  // points of the current scan line
 };
 
-// Per-cell split thresholds, computed once for both passes.
+// Per-cell split thresholds, computed once for both passes (holes: 1).
 struct CellThresholds {
-  std::vector<double> tau, inv_tau2;
+  std::unique_ptr<double[]> tau, inv_tau2;
 };
 
-CellThresholds cell_thresholds(const RangeImage& img, const LineFitConfig& cfg) {
+// Branch-free loops over the cells (vectorized; the same IEEE operations as Vec3::norm and threshold_scale).
+LINE_FIT_CLONES CellThresholds cell_thresholds(const RangeImage& img, const LineFitConfig& cfg) {
+  static_assert(sizeof(Vec3) == 3 * sizeof(double), "Vec3 arrays are read as packed x, y, z");
   CellThresholds t;
   const size_t n = img.points.size();
-  t.tau.resize(n);
-  t.inv_tau2.resize(n);
+  t.tau.reset(new double[n]);
+  t.inv_tau2.reset(new double[n]);
+  const double* __restrict xyz = img.points.empty() ? nullptr : img.points[0].data();
+  const std::uint8_t* __restrict valid = img.valid.data();
+  double* __restrict tau_out = t.tau.get();
+  double* __restrict inv_out = t.inv_tau2.get();
   for (size_t i = 0; i < n; ++i) {
-    const double tau = img.valid[i] ? cfg.split_distance * cfg.threshold_scale(img.points[i].norm()) : 1.0;
-    t.tau[i] = tau;
-    t.inv_tau2[i] = 1.0 / (tau * tau);
+    const double x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
+    tau_out[i] = x * x + y * y + z * z;
+  }
+  // std::sqrt in a loop would keep its errno branch; Eigen's array sqrt is the plain IEEE square root
+  Eigen::Map<Eigen::ArrayXd> range(tau_out, static_cast<Eigen::Index>(n));
+  range = range.sqrt();
+  const double split = cfg.split_distance, a = cfg.threshold_per_m, b = cfg.threshold_per_m2;
+  for (size_t i = 0; i < n; ++i) {
+    const double r = tau_out[i];
+    const double scaled = split * (1.0 + a * r + b * r * r);
+    // valid ? scaled : 1, as a bit select (a branch would keep the loop from vectorizing)
+    const std::uint64_t keep = 0 - static_cast<std::uint64_t>(valid[i] != 0);
+    std::uint64_t bits_scaled, bits_one;
+    const double one = 1.0;
+    std::memcpy(&bits_scaled, &scaled, sizeof scaled);
+    std::memcpy(&bits_one, &one, sizeof one);
+    const std::uint64_t bits = (bits_scaled & keep) | (bits_one & ~keep);
+    double tau;
+    std::memcpy(&tau, &bits, sizeof tau);
+    tau_out[i] = tau;
+    inv_out[i] = 1.0 / (tau * tau);
   }
   return t;
 }
@@ -477,8 +542,8 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   // Local pointers and running sums in registers (the same additions, in the same order, as prev + p p^T).
   const std::uint8_t* valid = img.valid.data();
   const Vec3* points = img.points.data();
-  const double* cell_tau = th.tau.data();
-  const double* cell_inv_tau2 = th.inv_tau2.data();
+  const double* cell_tau = th.tau.get();
+  const double* cell_inv_tau2 = th.inv_tau2.get();
   int* out_cell = buf->cell.data();
   int* out_pos = buf->pos.data();
   Vec3* out_p = buf->p.data();
@@ -510,6 +575,17 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
     pm.xx = xx, pm.xy = xy, pm.xz = xz, pm.yy = yy, pm.yz = yz, pm.zz = zz;
   }
   buf->count = m;
+}
+
+// The lines of every row (horizontal) or every column; everything it calls is inlined into its two clones.
+LINE_FIT_CLONES_FLATTEN void fit_pass(
+    const RangeImage& image, const CellThresholds& thresholds, bool horizontal, int min_points,
+    ScanLineFitter& fitter, ScanBuffer& buf, std::vector<LineFeature>* out, std::vector<std::int32_t>* labels) {
+  const int scans = horizontal ? image.rows : image.cols;
+  for (int i = 0; i < scans; ++i) {
+    fill_buffer(image, thresholds, horizontal, i, &buf);
+    fitter.fit(buf, min_points, i, out, labels);
+  }
 }
 
 }  // namespace
@@ -615,14 +691,8 @@ ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
   ScanLineFitter fitter(config);
   ScanBuffer buf;
   const CellThresholds thresholds = cell_thresholds(image, config);
-  for (int r = 0; r < image.rows; ++r) {
-    fill_buffer(image, thresholds, true, r, &buf);
-    fitter.fit(buf, config.min_points_h, r, &out.h_lines, &out.h_label);
-  }
-  for (int c = 0; c < image.cols; ++c) {
-    fill_buffer(image, thresholds, false, c, &buf);
-    fitter.fit(buf, config.min_points_v, c, &out.v_lines, &out.v_label);
-  }
+  fit_pass(image, thresholds, true, config.min_points_h, fitter, buf, &out.h_lines, &out.h_label);
+  fit_pass(image, thresholds, false, config.min_points_v, fitter, buf, &out.v_lines, &out.v_label);
   return out;
 }
 
