@@ -263,6 +263,7 @@ class ScanLineFitter {
       for (int j = i + 1; j < np; ++j) {
         const int first_new = std::max(pieces_[j].first, cur.last + 1);
         if (first_new - cur.last - 1 > cfg_.max_outliers) break;
+        if (merge_must_fail(buf, cur, pieces_[j].second)) continue;
         if (try_merge(buf, &cur, first_new, pieces_[j].second)) {
           i = j;
           merged = true;
@@ -275,6 +276,19 @@ class ScanLineFitter {
       if (++i >= np) break;
       start_line(buf, &cur, pieces_[i].first, pieces_[i].second);
     }
+  }
+
+  // True when try_merge(line, ., b) is certain to return false, decided without the refit: try_merge checks the
+  // line's first and last points and b against the refit, and no line keeps three points within T = their
+  // largest threshold when their triangle is wider than 2 T (its smallest altitude; a strip of half-width T
+  // around any line, projected into the triangle's plane, would hold it). Margin 1e-6: far beyond the rounding.
+  bool merge_must_fail(const ScanBuffer& buf, const CandidateLine& line, int b) const {
+    const Vec3& p0 = buf.p[line.first];
+    const Vec3 u = buf.p[line.last] - p0, v = buf.p[b] - p0, w = buf.p[b] - buf.p[line.last];
+    const double area2 = u.cross(v).squaredNorm();  // (2 area)^2
+    const double side2 = std::max(v.squaredNorm(), std::max(u.squaredNorm(), w.squaredNorm()));
+    const double t = std::max(buf.tau[line.first], std::max(buf.tau[line.last], buf.tau[b]));
+    return area2 > 4.0 * (t * t) * side2 * (1.0 + 1e-6);
   }
 
   // The fit of a new line is only needed once it is long enough for the cheap rejection in try_merge.
