@@ -64,17 +64,20 @@ struct ScanBuffer {
   std::vector<double> x, y, z;        // p as structure of arrays
   std::vector<double> tau;
   std::vector<double> inv_tau2;       // 1 / tau^2
-  std::vector<Moments> prefix;        // prefix[k] = moments of points [0, k)
+  struct PrefixSums {
+    double sx, sy, sz, xx, xy, xz, yy, yz, zz;
+  };
+  std::vector<PrefixSums> prefix;     // prefix[k] = moment sums of points [0, k)
 
   int count = 0;                      // points in this scan line (the arrays keep their largest size)
 
   int size() const { return count; }
   Moments stretch(int a, int b) const {  // points [a, b]
-    const Moments& hi = prefix[b + 1];
-    const Moments& lo = prefix[a];
+    const PrefixSums& hi = prefix[b + 1];
+    const PrefixSums& lo = prefix[a];
     Moments m;
-    m.count = hi.count - lo.count;
-    m.sum = hi.sum - lo.sum;
+    m.count = b + 1 - a;
+    m.sum = Vec3(hi.sx - lo.sx, hi.sy - lo.sy, hi.sz - lo.sz);
     m.xx = hi.xx - lo.xx, m.xy = hi.xy - lo.xy, m.xz = hi.xz - lo.xz;
     m.yy = hi.yy - lo.yy, m.yz = hi.yz - lo.yz, m.zz = hi.zz - lo.zz;
     return m;
@@ -112,35 +115,32 @@ int chord_ratios(const double* __restrict X0, const double* __restrict Y0, const
   const double* __restrict X = X0 + 1;
   const double* __restrict Y = Y0 + 1;
   const double* __restrict Z = Z0 + 1;
+  // The ratios are >= +0 (squares times positive factors), so they order as their bit patterns do: their
+  // maximum is a vectorized integer max in the same loop, then the first index holding it is looked up.
+  std::int64_t top = 0;
+  auto keep = [&top, R](int i, double r) {
+    R[i] = r;
+    std::int64_t b;
+    std::memcpy(&b, &r, sizeof b);
+    top = b > top ? b : top;
+  };
   if (degenerate) {
     for (int i = 0; i < n; ++i) {
       const double rx = X[i] - ax, ry = Y[i] - ay, rz = Z[i] - az;
-      R[i] = (rx * rx + ry * ry + rz * rz) * W[i];
+      keep(i, (rx * rx + ry * ry + rz * rz) * W[i]);
     }
   } else {
     for (int i = 0; i < n; ++i) {
       const double rx = X[i] - ax, ry = Y[i] - ay, rz = Z[i] - az;
       const double ux = ry * cz - rz * cy, uy = rz * cx - rx * cz, uz = rx * cy - ry * cx;
-      R[i] = (ux * ux + uy * uy + uz * uz) * (inv_len2 * W[i]);
+      keep(i, (ux * ux + uy * uy + uz * uz) * (inv_len2 * W[i]));
     }
-  }
-  // First index of the largest ratio above 1. The ratios are >= +0 (squares times positive factors), so they
-  // order as their bit patterns do: a vectorized integer max, then the first index holding it.
-  auto bits = [R](int i) {
-    std::int64_t b;
-    std::memcpy(&b, R + i, sizeof b);
-    return b;
-  };
-  std::int64_t top = 0;
-  for (int i = 0; i < n; ++i) {
-    const std::int64_t b = bits(i);
-    top = b > top ? b : top;
   }
   double worst;
   std::memcpy(&worst, &top, sizeof worst);
   if (!(worst > 1.0)) return -1;
   int i = 0;
-  while (bits(i) != top) ++i;
+  while (R[i] != worst) ++i;
   return 1 + i;
 }
 
@@ -550,10 +550,9 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
     buf->inv_tau2.resize(n);
     buf->prefix.resize(n + 1);
   }
-  buf->prefix[0] = Moments();
   const int cell0 = horizontal ? index * img.cols : index;
   const int step = horizontal ? 1 : img.cols;
-  // Local pointers and running sums in registers (the same additions, in the same order, as prev + p p^T).
+  // The valid points, compacted.
   const std::uint8_t* valid = img.valid.data();
   const Vec3* points = img.points.data();
   const double* cell_tau = th.tau.get();
@@ -566,8 +565,6 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   double* out_z = buf->z.data();
   double* out_tau = buf->tau.data();
   double* out_inv_tau2 = buf->inv_tau2.data();
-  Moments* prefix = buf->prefix.data();
-  double sx = 0.0, sy = 0.0, sz = 0.0, xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
   int m = 0;
   for (int k = 0, cell = cell0; k < n; ++k, cell += step) {
     if (!valid[cell]) continue;
@@ -580,15 +577,19 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
     out_z[m] = z;
     out_tau[m] = cell_tau[cell];
     out_inv_tau2[m] = cell_inv_tau2[cell];
-    sx += x, sy += y, sz += z;
-    xx += x * x, xy += x * y, xz += x * z, yy += y * y, yz += y * z, zz += z * z;
     ++m;
-    Moments& pm = prefix[m];
-    pm.count = m;
-    pm.sum = Vec3(sx, sy, sz);
-    pm.xx = xx, pm.xy = xy, pm.xz = xz, pm.yy = yy, pm.yz = yz, pm.zz = zz;
   }
   buf->count = m;
+  // Their prefix sums: running sums in registers (the same additions, in the same order, as prev + p p^T).
+  ScanBuffer::PrefixSums* prefix = buf->prefix.data();
+  double sx = 0.0, sy = 0.0, sz = 0.0, xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
+  prefix[0] = {sx, sy, sz, xx, xy, xz, yy, yz, zz};
+  for (int k = 0; k < m; ++k) {
+    const double x = out_x[k], y = out_y[k], z = out_z[k];
+    sx += x, sy += y, sz += z;
+    xx += x * x, xy += x * y, xz += x * z, yy += y * y, yz += y * z, zz += z * z;
+    prefix[k + 1] = {sx, sy, sz, xx, xy, xz, yy, yz, zz};
+  }
 }
 
 // The lines of every row (horizontal) or every column; everything it calls is inlined into its two clones.
