@@ -93,11 +93,22 @@ struct CandidateLine {
   bool accepted = false;
 };
 
-double residual(const LineLeastSquares& f, const Vec3& p) { return (p - f.centroid).cross(f.direction).norm(); }
+// Scalar forms of |v|^2 and |(p - c) x d|^2 with the same operations, in the same order, as Eigen's
+// squaredNorm() and cross() on Vec3 (which pack a temporary through memory, a store-forwarding stall).
+inline double squared_norm(double x, double y, double z) { return x * x + y * y + z * z; }
+inline double squared_norm(const Vec3& v) { return squared_norm(v.x(), v.y(), v.z()); }
+inline double cross_squared_norm(double rx, double ry, double rz, const Vec3& d) {
+  return squared_norm(ry * d.z() - rz * d.y(), rz * d.x() - rx * d.z(), rx * d.y() - ry * d.x());
+}
+inline double distance2(const Vec3& p, const Vec3& c, const Vec3& d) {  // |(p - c) x d|^2
+  return cross_squared_norm(p.x() - c.x(), p.y() - c.y(), p.z() - c.z(), d);
+}
+
+double residual(const LineLeastSquares& f, const Vec3& p) { return std::sqrt(distance2(p, f.centroid, f.direction)); }
 
 // Squared distance to the line over the squared threshold: > 1 means outside.
 inline __attribute__((always_inline)) double excess2(const LineLeastSquares& f, const ScanBuffer& buf, int k) {
-  return (buf.p[k] - f.centroid).cross(f.direction).squaredNorm() * buf.inv_tau2[k];
+  return distance2(buf.p[k], f.centroid, f.direction) * buf.inv_tau2[k];
 }
 
 void remove_point(Moments* m, const Vec3& p) { m->remove(p); }
@@ -284,9 +295,12 @@ class ScanLineFitter {
   // around any line, projected into the triangle's plane, would hold it). Margin 1e-6: far beyond the rounding.
   bool merge_must_fail(const ScanBuffer& buf, const CandidateLine& line, int b) const {
     const Vec3& p0 = buf.p[line.first];
-    const Vec3 u = buf.p[line.last] - p0, v = buf.p[b] - p0, w = buf.p[b] - buf.p[line.last];
-    const double area2 = u.cross(v).squaredNorm();  // (2 area)^2
-    const double side2 = std::max(v.squaredNorm(), std::max(u.squaredNorm(), w.squaredNorm()));
+    const Vec3& p1 = buf.p[line.last];
+    const Vec3& p2 = buf.p[b];
+    const Vec3 v = p2 - p0;
+    const double area2 = distance2(p1, p0, v);  // |(p1 - p0) x (p2 - p0)|^2 = (2 area)^2
+    const double side2 = std::max(squared_norm(v), std::max(squared_norm(p1.x() - p0.x(), p1.y() - p0.y(), p1.z() - p0.z()),
+                                                            squared_norm(p2.x() - p1.x(), p2.y() - p1.y(), p2.z() - p1.z())));
     const double t = std::max(buf.tau[line.first], std::max(buf.tau[line.last], buf.tau[b]));
     return area2 > 4.0 * (t * t) * side2 * (1.0 + 1e-6);
   }
@@ -312,7 +326,7 @@ class ScanLineFitter {
 
   Vec3 chord_direction(const ScanBuffer& buf, int a, int b) const {
     const Vec3 d = buf.p[b] - buf.p[a];
-    const double n = d.norm();
+    const double n = std::sqrt(squared_norm(d));
     return n > 1e-12 ? Vec3(d / n) : Vec3::UnitX();
   }
 
@@ -398,7 +412,7 @@ class ScanLineFitter {
       const bool short_line = c.moments.count < 12;
       // residual > max(limit, floor), the floor (a sqrt) computed only when the residual exceeds the limit
       auto beyond = [&](double r, double limit, int k) {
-        return r > limit && r > 0.5 * cfg_.max_rms * cfg_.threshold_scale(buf.p[k].norm());
+        return r > limit && r > 0.5 * cfg_.max_rms * cfg_.threshold_scale(std::sqrt(squared_norm(buf.p[k])));
       };
       auto off = [&](int k) {
         if (short_line && c.moments.count >= 5) {  // judged by the line through the other points
