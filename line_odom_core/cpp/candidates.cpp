@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <optional>
 #include <utility>
@@ -22,7 +23,7 @@ double deg2rad(double deg) { return deg * kPi / 180.0; }
 // reads the cells of its own samples. Cells are a CSR array: a lookup is an index, not a hash probe.
 class SegmentGrid {
  public:
-  SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance)
+  SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance, double max_cells)
       : cell_(1.5 * std::max(max_distance, 1e-3)) {
     Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
     for (const LineFeature* l : lines) {
@@ -34,27 +35,33 @@ class SegmentGrid {
     // Coarser cells keep any grid (e.g. a frame with a far-away outlier) within a fixed size; correctness only
     // needs cell >= 1.5 max_distance.
     auto cells = [&]() { return (extent.array() / cell_ + 5.0).prod(); };
-    while (cells() > kMaxCells) cell_ *= 2.0;
+    while (cells() > max_cells) cell_ *= 2.0;
     step_ = cell_ / 3.0;
     origin_ = lo - Vec3::Constant(2.0 * cell_);  // two cells of margin hold the neighbourhoods of the samples
     for (int k = 0; k < 3; ++k) size_[k] = static_cast<int>(extent[k] / cell_) + 5;
+
+    inverse_cell_ = 1.0 / cell_;
 
     const size_t total = static_cast<size_t>(size_[0]) * size_[1] * size_[2];
     std::vector<int> filed_by(total, -1);  // last line filed under the cell
     std::vector<std::pair<int, int>> entries;  // (cell, line id)
     const int sx = size_[1] * size_[2], sy = size_[2];
-    for (int id = 0; id < static_cast<int>(lines.size()); ++id)
+    std::array<int, 27> neighbours;
+    for (int x = -1, i = 0; x <= 1; ++x)
+      for (int y = -1; y <= 1; ++y)
+        for (int z = -1; z <= 1; ++z) neighbours[i++] = x * sx + y * sy + z;
+    for (int id = 0; id < static_cast<int>(lines.size()); ++id) {
+      const double len = lines[id]->segment.length();
+      left_out_any_ = left_out_any_ || (std::isfinite(len) && len > kMaxSamples * step_);
       for_each_sample_cell(lines[id]->segment, [&](int cell) {
-        const int cx = cell / sx, cy = (cell / sy) % size_[1], cz = cell % sy;
-        for (int x = cx - 1; x <= cx + 1; ++x)
-          for (int y = cy - 1; y <= cy + 1; ++y)
-            for (int z = cz - 1; z <= cz + 1; ++z) {
-              const int c = x * sx + y * sy + z;
-              if (filed_by[c] == id) continue;
-              filed_by[c] = id;
-              entries.emplace_back(c, id);
-            }
+        for (const int offset : neighbours) {
+          const int c = cell + offset;
+          if (filed_by[c] == id) continue;
+          filed_by[c] = id;
+          entries.emplace_back(c, id);
+        }
       });
+    }
     begin_.assign(total + 1, 0);
     for (const auto& e : entries) ++begin_[e.first + 1];
     for (size_t c = 1; c < begin_.size(); ++c) begin_[c] += begin_[c - 1];
@@ -62,6 +69,9 @@ class SegmentGrid {
     std::vector<int> fill(begin_.begin(), begin_.end() - 1);
     for (const auto& e : entries) ids_[fill[e.first]++] = e.second;
   }
+
+  // Whether a segment of finite length was left out as too long for the cells (see for_each_sample_cell).
+  bool left_out_any() const { return left_out_any_; }
 
   // Calls visit(id) for every bucketed segment with a sample in a cell next to a sample of `query`
   // (an id may be visited more than once).
@@ -83,31 +93,35 @@ class SegmentGrid {
     // intrinsics) is not bucketed, so one bad frame cannot cost without bound.
     if (!std::isfinite(len) || len > kMaxSamples * step_) return;
     const int n = 1 + static_cast<int>(std::ceil(len / step_));
+    // Sample i sits at (start + i * delta) cells from the origin.
+    const Vec3 start = (s.a - origin_) * inverse_cell_, delta = (s.b - s.a) * (inverse_cell_ / n);
+    const double hx = size_[0] - 2, hy = size_[1] - 2, hz = size_[2] - 2;
     int previous = -1;
     for (int i = 0; i <= n; ++i) {
-      const Vec3 p = s.a + (s.b - s.a) * (static_cast<double>(i) / n);
-      int cell = 0;
-      bool inside = true;
-      for (int k = 0; k < 3 && inside; ++k) {
-        const double c = std::floor((p[k] - origin_[k]) / cell_);
-        inside = c >= 1.0 && c <= size_[k] - 2;
-        cell = cell * size_[k] + static_cast<int>(c);
-      }
-      if (!inside || cell == previous) continue;
+      const double x = std::floor(start[0] + delta[0] * i), y = std::floor(start[1] + delta[1] * i),
+                   z = std::floor(start[2] + delta[2] * i);
+      if (!(x >= 1.0 && x <= hx && y >= 1.0 && y <= hy && z >= 1.0 && z <= hz)) continue;
+      const int cell = (static_cast<int>(x) * size_[1] + static_cast<int>(y)) * size_[2] + static_cast<int>(z);
+      if (cell == previous) continue;
       previous = cell;
       f(cell);
     }
   }
 
   static constexpr double kMaxSamples = 4096.0;
-  static constexpr double kMaxCells = 1 << 21;
-  double cell_, step_ = 1.0;
+  double cell_, step_ = 1.0, inverse_cell_ = 1.0;
+  bool left_out_any_ = false;
   Vec3 origin_ = Vec3::Zero();
   std::array<int, 3> size_{};
   std::vector<int> begin_, ids_;
 };
 
 constexpr double kBruteForcePairs = 3e5;  // up to this many line pairs, match without the grid
+constexpr double kMaxCells = 1 << 21;  // grid size bound: coarser cells beyond (any frame costs a bounded grid)
+// The near search for a line's closest partners (max_pairs_per_line > 0) reaches this share of the pass distance,
+// on a grid kept small enough to build cheaply (a grid of millions of cells costs more than it saves).
+constexpr double kNearFraction = 0.25;
+constexpr double kNearMaxCells = 1 << 18;
 
 struct LinePair {
   const LineFeature* a;
@@ -115,31 +129,43 @@ struct LinePair {
   double distance;
 };
 
-// The usable lines of one kind (H or V) of frame a with their grid, segment bounding boxes (a box gap above the
-// pass distance rules a pair out before the exact distance) and normal norms.
+// What the filters of one line of frame a read, packed in one record (two cache lines) so that a partner visited
+// from the grid costs one scattered read; the segment itself is read only for the exact distance.
+struct LineRecord {
+  Vec3 box_lo, box_hi;  // segment bounding box: a box gap above the pass distance rules a pair out
+  Vec3 d;               // line direction
+  Vec3 normal;          // surface normal (0 if unknown)
+  double normal_norm;
+  double magnitude;     // largest |coordinate| of the segment (bounds the rounding of its distances)
+  bool normal_known;
+};
+
+// The usable lines of one kind (H or V) of frame a with their records and grid.
 struct IndexedLines {
   std::vector<const LineFeature*> lines;
-  std::vector<Vec3> box_lo, box_hi;
-  // The same boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
+  std::vector<LineRecord> records;
+  // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
   std::array<std::vector<float>, 6> box_columns;
-  std::vector<double> normal_norm;
-  double max_distance;
-  std::optional<SegmentGrid> grid;  // built on first use: small frames are matched without it
+  // Grids for the pass distance and for the near search, built on first use: small frames are matched without.
+  std::optional<SegmentGrid> grid, near_grid;
 
-  IndexedLines(const std::vector<LineFeature>& all, double max_distance)
-      : lines(usable(all)), max_distance(max_distance) {
-    box_lo.resize(lines.size());
-    box_hi.resize(lines.size());
-    normal_norm.resize(lines.size());
+  explicit IndexedLines(const std::vector<LineFeature>& all) : lines(usable(all)) {
+    records.resize(lines.size());
+    for (auto& c : box_columns) c.resize(lines.size());
     for (size_t i = 0; i < lines.size(); ++i) {
-      const Segment& s = lines[i]->segment;
-      box_lo[i] = s.a.cwiseMin(s.b);
-      box_hi[i] = s.a.cwiseMax(s.b);
+      const LineFeature& l = *lines[i];
+      LineRecord& r = records[i];
+      r.box_lo = l.segment.a.cwiseMin(l.segment.b);
+      r.box_hi = l.segment.a.cwiseMax(l.segment.b);
+      r.d = l.line.d;
+      r.normal = l.normal;
+      r.normal_norm = l.normal.norm();
+      r.normal_known = l.normal.squaredNorm() > 0.25;
+      r.magnitude = std::max(r.box_lo.cwiseAbs().maxCoeff(), r.box_hi.cwiseAbs().maxCoeff());
       for (int k = 0; k < 3; ++k) {
-        box_columns[k].push_back(round_down(box_lo[i][k]));
-        box_columns[3 + k].push_back(round_up(box_hi[i][k]));
+        box_columns[k][i] = round_down(r.box_lo[k]);
+        box_columns[3 + k][i] = round_up(r.box_hi[k]);
       }
-      normal_norm[i] = lines[i]->normal.norm();
     }
   }
 
@@ -161,22 +187,88 @@ struct IndexedLines {
   }
 };
 
+// overlap[i] = 1 where box i (float columns lo x y z, hi x y z) reaches into `reach` (hi x y z, lo x y z).
+void mark_box_overlaps(const std::array<std::vector<float>, 6>& columns, const std::array<float, 6>& reach,
+                       std::uint8_t* __restrict overlap) {
+  const float* __restrict lx = columns[0].data();
+  const float* __restrict ly = columns[1].data();
+  const float* __restrict lz = columns[2].data();
+  const float* __restrict hx = columns[3].data();
+  const float* __restrict hy = columns[4].data();
+  const float* __restrict hz = columns[5].data();
+  const float rx = reach[0], ry = reach[1], rz = reach[2], qx = reach[3], qy = reach[4], qz = reach[5];
+  const int n = static_cast<int>(columns[0].size());
+  for (int i = 0; i < n; ++i)
+    overlap[i] = (lx[i] <= rx) & (ly[i] <= ry) & (lz[i] <= rz) & (hx[i] >= qx) & (hy[i] >= qy) & (hz[i] >= qz);
+}
+
+// A partner that passed the filters, with the squared gap between the bounding boxes (a lower bound of the
+// squared segment distance).
+struct Nearby {
+  int ia;
+  double box_gap2;
+};
+
+// The k partners closest by (distance, line of frame a) among `nearby`, those within max_distance; the same
+// choice as computing every distance and keeping the k smallest. A partner whose box gap exceeds the k-th
+// distance found so far (with a margin far above rounding) cannot be among them and is not measured.
+void closest_partners(std::vector<Nearby>& nearby, const IndexedLines& indexed, const Segment& sb,
+                      double sb_magnitude, double max_distance, int k, std::vector<std::pair<double, int>>* best) {
+  best->clear();
+  auto before = [](const std::pair<double, int>& x, const std::pair<double, int>& y) {
+    return x.first < y.first || (x.first == y.first && x.second < y.second);
+  };
+  auto measure = [&](int ia) {
+    const double dist = segment_distance(indexed.lines[ia]->segment, sb);
+    if (!(dist <= max_distance)) return;
+    const std::pair<double, int> p{dist, ia};
+    if (static_cast<int>(best->size()) < k) {
+      best->insert(std::upper_bound(best->begin(), best->end(), p, before), p);
+    } else if (before(p, best->back())) {
+      best->pop_back();
+      best->insert(std::upper_bound(best->begin(), best->end(), p, before), p);
+    }
+  };
+  const size_t n = nearby.size();
+  if (n > static_cast<size_t>(k)) {
+    // Measure the k smallest box gaps first: their distances bound the k-th distance from the start.
+    std::nth_element(nearby.begin(), nearby.begin() + k, nearby.end(),
+                     [](const Nearby& x, const Nearby& y) { return x.box_gap2 < y.box_gap2; });
+  }
+  for (size_t i = 0; i < n; ++i) {
+    const Nearby& c = nearby[i];
+    if (static_cast<int>(best->size()) == k) {
+      const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.records[c.ia].magnitude);
+      const double bound = best->back().first + margin;
+      if (c.box_gap2 > bound * bound) continue;
+    }
+    measure(c.ia);
+  }
+}
+
 // Pairs of lines of frame a (indexed) with lines_b (frame b, moved into a by T) that pass the filters.
 void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b, const RigidTransform& T,
                  const CandidateOptions& opt, std::vector<LinePair>* out) {
   const std::vector<const LineFeature*>& usable_a = indexed.lines;
   if (usable_a.empty()) return;
-  const std::vector<Vec3>& box_lo = indexed.box_lo;
-  const std::vector<Vec3>& box_hi = indexed.box_hi;
-  const std::vector<double>& normal_norm = indexed.normal_norm;
-  const double box_gap = opt.max_distance * (1.0 + 1e-9) + 1e-9;
+  const std::vector<LineRecord>& records = indexed.records;
   const double max_cos_lines = std::cos(deg2rad(opt.min_line_angle_deg));
   const double min_cos_normals = std::cos(deg2rad(opt.max_normal_angle_deg));
+  const int k = opt.max_pairs_per_line;
+  const double near_distance = opt.max_distance * kNearFraction;
 
   const bool brute_force = static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs;
   std::vector<int> last_seen(usable_a.size(), -1);
-  std::vector<std::uint8_t> overlap(brute_force ? usable_a.size() : 0);
-  std::vector<LinePair> partners;
+  int stamp = -1;
+  std::vector<std::uint8_t> overlap(brute_force ? usable_a.size() + 8 : 0);  // padded to whole 8-byte words
+  std::vector<Nearby> nearby;
+  std::vector<std::pair<double, int>> best;
+  // Grids are built for a slightly larger distance: a partner measured within the distance is certainly found.
+  auto pass_grid = [&]() -> const SegmentGrid* {
+    if (brute_force) return nullptr;
+    if (!indexed.grid) indexed.grid.emplace(usable_a, opt.max_distance * (1.0 + 1e-6), kMaxCells);
+    return &*indexed.grid;
+  };
   for (int ib = 0; ib < static_cast<int>(lines_b.size()); ++ib) {
     const LineFeature& lb = lines_b[ib];
     if (!lb.segment.a.allFinite() || !lb.segment.b.allFinite() || !lb.line.d.allFinite()) continue;
@@ -186,48 +278,70 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const Vec3 nb = T.R * lb.normal;
     const double nb_norm = nb.norm();
     const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
-    partners.clear();
-    auto consider = [&](int ia) {
-      if (last_seen[ia] == ib) return;
-      last_seen[ia] = ib;
-      const LineFeature& la = *usable_a[ia];
-      if (std::abs(la.line.d.dot(db)) > max_cos_lines) return;
-      if (nb_known && la.normal.squaredNorm() > 0.25 &&
-          std::abs(la.normal.dot(nb)) / (normal_norm[ia] * nb_norm) < min_cos_normals)
-        return;
-      if ((box_lo[ia] - sb_hi).maxCoeff() > box_gap || (sb_lo - box_hi[ia]).maxCoeff() > box_gap) return;
-      const double dist = segment_distance(la.segment, sb);
-      if (dist <= opt.max_distance) partners.push_back({&la, &lb, dist});
-    };
-    if (brute_force) {
-      // Few pairs: a scan of the boxes costs less than the grid's cell lists.
-      std::array<float, 6> reach;
-      for (int k = 0; k < 3; ++k) {
-        reach[k] = IndexedLines::round_up(sb_hi[k] + box_gap + 1e-9);
-        reach[3 + k] = IndexedLines::round_down(sb_lo[k] - box_gap - 1e-9);
+    const double sb_magnitude = std::max(sb_lo.cwiseAbs().maxCoeff(), sb_hi.cwiseAbs().maxCoeff());
+    // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
+    // (a superset of the partners within `distance`).
+    auto gather = [&](double distance, const SegmentGrid* grid) {
+      nearby.clear();
+      ++stamp;
+      const double box_gap = distance * (1.0 + 1e-9) + 1e-9;
+      auto consider = [&](int ia) {
+        if (last_seen[ia] == stamp) return;
+        last_seen[ia] = stamp;
+        const LineRecord& r = records[ia];
+        const Vec3 gap_lo = r.box_lo - sb_hi, gap_hi = sb_lo - r.box_hi;
+        if (gap_lo.maxCoeff() > box_gap || gap_hi.maxCoeff() > box_gap) return;
+        if (nb_known && r.normal_known && std::abs(r.normal.dot(nb)) / (r.normal_norm * nb_norm) < min_cos_normals)
+          return;
+        if (std::abs(r.d.dot(db)) > max_cos_lines) return;
+        nearby.push_back({ia, gap_lo.cwiseMax(gap_hi).cwiseMax(0.0).squaredNorm()});
+      };
+      if (brute_force) {
+        // Few pairs: a scan of the boxes costs less than the grid's cell lists.
+        std::array<float, 6> reach;
+        for (int c = 0; c < 3; ++c) {
+          reach[c] = IndexedLines::round_up(sb_hi[c] + box_gap + 1e-9);
+          reach[3 + c] = IndexedLines::round_down(sb_lo[c] - box_gap - 1e-9);
+        }
+        mark_box_overlaps(indexed.box_columns, reach, overlap.data());
+        const int na = static_cast<int>(usable_a.size());
+        for (int word = 0; word < na; word += 8) {
+          std::uint64_t any;  // overlaps are few: skip 8 boxes at a time
+          std::memcpy(&any, overlap.data() + word, sizeof any);
+          if (any == 0) continue;
+          for (int ia = word; ia < std::min(word + 8, na); ++ia)
+            if (overlap[ia]) consider(ia);
+        }
+      } else {
+        grid->for_each_near(sb, consider);
       }
-      const auto& c = indexed.box_columns;
-      const int na = static_cast<int>(usable_a.size());
-      for (int ia = 0; ia < na; ++ia)
-        overlap[ia] = (c[0][ia] <= reach[0]) & (c[1][ia] <= reach[1]) & (c[2][ia] <= reach[2]) &
-                      (c[3][ia] >= reach[3]) & (c[4][ia] >= reach[4]) & (c[5][ia] >= reach[5]);
-      for (int ia = 0; ia < na; ++ia)
-        if (overlap[ia]) consider(ia);
+    };
+    best.clear();
+    if (k > 0) {
+      // Most lines have their k closest partners much nearer than the pass distance: look there first. When
+      // k partners lie within near_distance, no partner farther away can displace them.
+      if (!brute_force && near_distance < opt.max_distance) {
+        if (!indexed.near_grid) indexed.near_grid.emplace(usable_a, near_distance * (1.0 + 1e-6), kNearMaxCells);
+        // The near grid must hold every line the pass grid holds (only absurdly long ones can be missing).
+        if (!indexed.near_grid->left_out_any()) {
+          gather(near_distance, &*indexed.near_grid);
+          closest_partners(nearby, indexed, sb, sb_magnitude, near_distance, k, &best);
+        }
+      }
+      if (static_cast<int>(best.size()) < k) {
+        gather(opt.max_distance, pass_grid());
+        closest_partners(nearby, indexed, sb, sb_magnitude, opt.max_distance, k, &best);
+      }
     } else {
-      if (!indexed.grid) indexed.grid.emplace(usable_a, indexed.max_distance);
-      indexed.grid->for_each_near(sb, consider);
+      gather(opt.max_distance, pass_grid());
+      for (const Nearby& c : nearby) {
+        const double dist = segment_distance(usable_a[c.ia]->segment, sb);
+        if (dist <= opt.max_distance) best.emplace_back(dist, c.ia);
+      }
     }
-    if (opt.max_pairs_per_line > 0 && static_cast<int>(partners.size()) > opt.max_pairs_per_line) {
-      // Closest k; ties broken by line, so the choice does not depend on the grid's traversal order.
-      std::nth_element(partners.begin(), partners.begin() + opt.max_pairs_per_line, partners.end(),
-                       [](const LinePair& x, const LinePair& y) {
-                         return x.distance < y.distance || (x.distance == y.distance && x.a < y.a);
-                       });
-      partners.resize(opt.max_pairs_per_line);
-    }
-    // Deterministic order regardless of grid traversal.
-    std::sort(partners.begin(), partners.end(), [](const LinePair& x, const LinePair& y) { return x.a < y.a; });
-    out->insert(out->end(), partners.begin(), partners.end());
+    // Deterministic order regardless of grid traversal: by line of frame a.
+    std::sort(best.begin(), best.end(), [](const auto& x, const auto& y) { return x.second < y.second; });
+    for (const auto& p : best) out->push_back({usable_a[p.second], &lb, p.first});
   }
 }
 
@@ -264,7 +378,7 @@ double segment_distance(const Segment& s1, const Segment& s2) {
 void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
                       const CandidateOptions& options, Correspondences* out, CandidateStats* stats) {
   *out = Correspondences{};
-  IndexedLines h_a(a.h_lines, options.max_distance), v_a(a.v_lines, options.max_distance);
+  IndexedLines h_a(a.h_lines), v_a(a.v_lines);
   std::vector<LinePair> pairs;
   match_lines(h_a, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
   match_lines(v_a, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
