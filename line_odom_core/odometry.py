@@ -111,8 +111,9 @@ class Odometry:
         K_arr = np.asarray(K, dtype=float)
         if K_arr.shape != (3, 3) or not np.all(np.isfinite(K_arr)) or K_arr[0, 0] <= 0 or K_arr[1, 1] <= 0:
             raise ValueError(f"K: expected finite 3x3 intrinsics with fx, fy > 0, got {K_arr.tolist()}")
-        return self._wrap(self._engine.register_depth(np.ascontiguousarray(d, dtype=np.float32), K_arr,
-                                                      _stamp(stamp)))
+        with np.errstate(over="ignore"):  # depths beyond float32 become inf: holes, like any out-of-range depth
+            d32 = np.ascontiguousarray(d, dtype=np.float32)
+        return self._wrap(self._engine.register_depth(d32, K_arr, _stamp(stamp)))
 
     def reset(self, pose: np.ndarray | None = None) -> None:
         """Forget the previous scan and the velocity; the next frame gets `pose` (default identity)."""
