@@ -185,7 +185,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     // and whichever has the larger weighted inlier count on the same candidates is kept (paper §6.3).
     // An ill-conditioned refined guess still competes: a sample must out-support it to win, or the pass fails.
     RefineResult refined;
-    const bool refine_converged = refine_motion(corr, best, ropt, &refined) && sane(refined.T);
+    const bool refine_converged = refine_motion(corr, pairs, best, ropt, &refined) && sane(refined.T);
     const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
     RigidTransform estimate;
     MotionStats ms;
