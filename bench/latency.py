@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Per-frame latency of line_odom, stage by stage, next to KISS-ICP's on the same frames in one run (issue 4).
 
-    .venv/bin/python bench/latency.py                   # KITTI 00/04/07 at 1, 1/36, 1/64; TUM at 1, 1/100
+    .venv/bin/python bench/latency.py                   # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz (300 frames) at 1, 1/100
     .venv/bin/python bench/latency.py --repeat 3 --kiss-threads 1
 
 Stage times come from the engine's own stopwatch (stats["ms"]); "call" is the wall time of the Python call
@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"])
     parser.add_argument("--kitti-levels", nargs="+", type=int, default=[1, 6, 8])
     parser.add_argument("--tum-levels", nargs="+", type=int, default=[1, 10])
-    parser.add_argument("--tum-frames", type=int, default=60)
+    parser.add_argument("--tum-frames", type=int, default=300)  # all of fr1/xyz, as bench/accuracy.py
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--kiss-threads", type=int, default=1)
     parser.add_argument("--no-kiss", action="store_true")
