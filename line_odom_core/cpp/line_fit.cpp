@@ -55,6 +55,19 @@ inline __attribute__((always_inline)) LineLeastSquares fit_line(const Moments& m
   return fit_upper(m.count, m.sum, m.xx, m.xy, m.xz, m.yy, m.yz, m.zz, seed, 3);
 }
 
+// fit_upper in two halves, for callers that decide on the direction before its normalization (the square root
+// and divisions) and finish the fit only when they keep it: the same operations, so the same fit.
+struct LinePrefit {
+  Vec3 centroid = Vec3::Zero();
+  double xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;  // covariance
+  Vec3 u = Vec3::Zero();  // C^3 seed
+  double norm2 = 0.0;     // |u|^2
+  bool usable() const { return norm2 > 1e-300 && norm2 < 1e300; }  // the normalized path, scale far from overflow
+};
+inline __attribute__((always_inline)) LinePrefit prefit_line(const Moments& m, const Vec3& seed);
+inline __attribute__((always_inline)) LineLeastSquares finish_line(const LinePrefit& p, const Moments& m,
+                                                                   const Vec3& seed);
+
 // Points of one scan line in scan order, with their positions along it, their split thresholds and the
 // prefix sums of their moments (the moments of any stretch in O(1)).
 struct ScanBuffer {
@@ -346,21 +359,40 @@ class ScanLineFitter {
     }
     Moments m = line->moments;
     m.add(buf.stretch(a, b));
-    const LineLeastSquares f = fit_line(m, chord_direction(buf, line->first, b));
+    // The checks are decided on the direction before its normalization when clear by kMargin (far beyond the
+    // rounding of either form; the close cases finish the fit and take excess2 itself): the same decisions, and a
+    // rejected merge never pays for the square roots and divisions.
+    const Vec3 seed = chord_direction(buf, line->first, b);
+    const LinePrefit pre = prefit_line(m, seed);
+    LineLeastSquares f;
+    bool finished = false;
+    auto outside = [&](int k) {
+      if (pre.usable()) {
+        const double e = distance2(buf.p[k], pre.centroid, pre.u) * buf.inv_tau2[k];
+        if (e > pre.norm2 * (1.0 + kMargin)) return true;
+        if (e < pre.norm2 * (1.0 - kMargin)) return false;
+      }
+      if (!finished) {
+        f = finish_line(pre, m, seed);
+        finished = true;
+      }
+      return excess2(f, buf, k) > 1.0;
+    };
     for (int k = a; k <= b; ++k)
-      if (excess2(f, buf, k) > 1.0) return false;
+      if (outside(k)) return false;
     int checked = 0;
     for (int k = line->first; k <= line->last && checked < kEndChecks; ++k)
       if (!is_skipped_[k]) {
-        if (excess2(f, buf, k) > 1.0) return false;
+        if (outside(k)) return false;
         ++checked;
       }
     checked = 0;
     for (int k = line->last; k >= line->first && checked < kEndChecks; --k)
       if (!is_skipped_[k]) {
-        if (excess2(f, buf, k) > 1.0) return false;
+        if (outside(k)) return false;
         ++checked;
       }
+    if (!finished) f = finish_line(pre, m, seed);
     for (int k = line->last + 1; k < a; ++k) {
       skipped_.push_back(k);
       is_skipped_[k] = 1;
@@ -651,21 +683,34 @@ LineLeastSquares fit_line(const PointMoments& moments, const Vec3& seed, int ite
 namespace {
 
 // fit_line from the count, sum and upper triangle of the sum of outer products.
-inline LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, double oxz, double oyy,
-                                  double oyz, double ozz, const Vec3& seed, int iterations) {
-  LineLeastSquares f;
-  f.count = count;
-  if (count == 0) return f;
-  const double inv_n = 1.0 / count;
-  f.centroid = sum * inv_n;
-  if (count == 1) return f;
-  // Symmetric covariance from its upper triangle.
-  const Vec3& c = f.centroid;
+// 1 / n for small n from a table (the same correctly rounded quotients): no division latency at the head of
+// every fit.
+struct Reciprocals {
+  static constexpr int kSize = 256;
+  double value[kSize];
+  constexpr Reciprocals() : value() {
+    for (int n = 1; n < kSize; ++n) value[n] = 1.0 / n;
+  }
+};
+constexpr Reciprocals kReciprocals;
+
+inline double reciprocal(int n) { return n < Reciprocals::kSize ? kReciprocals.value[n] : 1.0 / n; }
+
+// Centroid, covariance (from its upper triangle) and the unnormalized power iterations (the scale grows like
+// lambda_max^k, harmless in double). Scalar code: the same operations, in the same order, as the Eigen expressions
+// C d, |d|^2, d / |d|, d.C d.
+inline __attribute__((always_inline)) LinePrefit prefit_upper(int count, const Vec3& sum, double oxx, double oxy,
+                                                              double oxz, double oyy, double oyz, double ozz,
+                                                              const Vec3& seed, int iterations) {
+  LinePrefit p;
+  if (count == 0) return p;
+  const double inv_n = reciprocal(count);
+  p.centroid = sum * inv_n;
+  if (count == 1) return p;
+  const Vec3& c = p.centroid;
   const double xx = oxx * inv_n - c.x() * c.x(), xy = oxy * inv_n - c.x() * c.y();
   const double xz = oxz * inv_n - c.x() * c.z(), yy = oyy * inv_n - c.y() * c.y();
   const double yz = oyz * inv_n - c.y() * c.z(), zz = ozz * inv_n - c.z() * c.z();
-  // Unnormalized iterations (the scale grows like lambda_max^k, harmless in double), one normalization.
-  // Scalar code: the same operations, in the same order, as the Eigen expressions C d, |d|^2, d / |d|, d.C d.
   double dx = seed.x(), dy = seed.y(), dz = seed.z();
   for (int it = 0; it < iterations; ++it) {
     const double nx = xx * dx + xy * dy + xz * dz;
@@ -673,7 +718,25 @@ inline LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double
     const double nz = xz * dx + yz * dy + zz * dz;
     dx = nx, dy = ny, dz = nz;
   }
-  const double norm2 = dx * dx + dy * dy + dz * dz;
+  p.xx = xx, p.xy = xy, p.xz = xz, p.yy = yy, p.yz = yz, p.zz = zz;
+  p.u = Vec3(dx, dy, dz);
+  p.norm2 = dx * dx + dy * dy + dz * dz;
+  return p;
+}
+
+// The normalization, the rms, and the retry from the largest axis when the seed was orthogonal to the spread.
+inline __attribute__((always_inline)) LineLeastSquares finish_upper(const LinePrefit& p, int count, const Vec3& sum,
+                                                                    double oxx, double oxy, double oxz, double oyy,
+                                                                    double oyz, double ozz, const Vec3& seed,
+                                                                    int iterations) {
+  LineLeastSquares f;
+  f.count = count;
+  if (count == 0) return f;
+  f.centroid = p.centroid;
+  if (count == 1) return f;
+  const double xx = p.xx, xy = p.xy, xz = p.xz, yy = p.yy, yz = p.yz, zz = p.zz;
+  double dx = p.u.x(), dy = p.u.y(), dz = p.u.z();
+  const double norm2 = p.norm2;
   const double trace = xx + yy + zz;
   if (!(norm2 > 1e-300) || !std::isfinite(norm2)) {
     if (iterations > 0 && seed.squaredNorm() > 0.0 && trace > 0.0) {  // seed orthogonal to the spread
@@ -691,6 +754,20 @@ inline LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double
   const double cz = xz * dx + yz * dy + zz * dz;
   f.rms = std::sqrt(std::max(0.0, trace - (dx * cx + dy * cy + dz * cz)));
   return f;
+}
+
+inline LineLeastSquares fit_upper(int count, const Vec3& sum, double oxx, double oxy, double oxz, double oyy,
+                                  double oyz, double ozz, const Vec3& seed, int iterations) {
+  return finish_upper(prefit_upper(count, sum, oxx, oxy, oxz, oyy, oyz, ozz, seed, iterations), count, sum, oxx,
+                      oxy, oxz, oyy, oyz, ozz, seed, iterations);
+}
+
+inline LinePrefit prefit_line(const Moments& m, const Vec3& seed) {
+  return prefit_upper(m.count, m.sum, m.xx, m.xy, m.xz, m.yy, m.yz, m.zz, seed, 3);
+}
+
+inline LineLeastSquares finish_line(const LinePrefit& p, const Moments& m, const Vec3& seed) {
+  return finish_upper(p, m.count, m.sum, m.xx, m.xy, m.xz, m.yy, m.yz, m.zz, seed, 3);
 }
 
 // The rare retry of fit_upper out of line, so that the hot fit_upper stays inlinable.
