@@ -295,7 +295,9 @@ class ScanLineFitter {
         }
       }
       if (merged) continue;
-      if (!fitted_) cur.fit = fit_line(cur.moments, chord_direction(buf, cur.first, cur.last));
+      // (a line with too few points is rejected by acceptable() before its fit is read)
+      if (!fitted_ && cur.moments.count >= min_points)
+        cur.fit = fit_line(cur.moments, chord_direction(buf, cur.first, cur.last));
       candidates_.push_back(cur);
       if (++i >= np) break;
       start_line(buf, &cur, pieces_[i].first, pieces_[i].second);
