@@ -70,6 +70,7 @@ class SegmentGrid {
     for (const auto& e : entries) ids_[fill[e.first]++] = e.second;
   }
 
+  double cell() const { return cell_; }
   // Whether a segment of finite length was left out as too long for the cells (see for_each_sample_cell).
   bool left_out_any() const { return left_out_any_; }
 
@@ -119,9 +120,10 @@ class SegmentGrid {
 constexpr double kBruteForcePairs = 3e5;  // up to this many line pairs, match without the grid
 constexpr double kMaxCells = 1 << 21;  // grid size bound: coarser cells beyond (any frame costs a bounded grid)
 // The near search for a line's closest partners (max_pairs_per_line > 0) reaches this share of the pass distance,
-// on a grid kept small enough to build cheaply (a grid of millions of cells costs more than it saves).
+// on a grid kept small (coarser cells beyond): on full KITTI frames a near grid of 2^19 cells cost more time in
+// memory traffic than its finer cells saved.
 constexpr double kNearFraction = 0.25;
-constexpr double kNearMaxCells = 1 << 18;
+constexpr double kNearMaxCells = 1 << 17;
 
 struct LinePair {
   const LineFeature* a;
@@ -136,7 +138,6 @@ struct LineRecord {
   Vec3 d;               // line direction
   Vec3 normal;          // surface normal (0 if unknown)
   double normal_norm;
-  double magnitude;     // largest |coordinate| of the segment (bounds the rounding of its distances)
   bool normal_known;
 };
 
@@ -144,6 +145,7 @@ struct LineRecord {
 struct IndexedLines {
   std::vector<const LineFeature*> lines;
   std::vector<LineRecord> records;
+  double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
   // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
   std::array<std::vector<float>, 6> box_columns;
   // Grids for the pass distance and for the near search, built on first use: small frames are matched without.
@@ -161,7 +163,7 @@ struct IndexedLines {
       r.normal = l.normal;
       r.normal_norm = l.normal.norm();
       r.normal_known = l.normal.squaredNorm() > 0.25;
-      r.magnitude = std::max(r.box_lo.cwiseAbs().maxCoeff(), r.box_hi.cwiseAbs().maxCoeff());
+      magnitude = std::max({magnitude, r.box_lo.cwiseAbs().maxCoeff(), r.box_hi.cwiseAbs().maxCoeff()});
       for (int k = 0; k < 3; ++k) {
         box_columns[k][i] = round_down(r.box_lo[k]);
         box_columns[3 + k][i] = round_up(r.box_hi[k]);
@@ -212,8 +214,8 @@ struct Nearby {
 // The k partners closest by (distance, line of frame a) among `nearby`, those within max_distance; the same
 // choice as computing every distance and keeping the k smallest. A partner whose box gap exceeds the k-th
 // distance found so far (with a margin far above rounding) cannot be among them and is not measured.
-void closest_partners(std::vector<Nearby>& nearby, const IndexedLines& indexed, const Segment& sb,
-                      double sb_magnitude, double max_distance, int k, std::vector<std::pair<double, int>>* best) {
+void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, const Segment& sb, double sb_magnitude,
+                      double max_distance, int k, std::vector<std::pair<double, int>>* best) {
   best->clear();
   auto before = [](const std::pair<double, int>& x, const std::pair<double, int>& y) {
     return x.first < y.first || (x.first == y.first && x.second < y.second);
@@ -229,16 +231,15 @@ void closest_partners(std::vector<Nearby>& nearby, const IndexedLines& indexed, 
       best->insert(std::upper_bound(best->begin(), best->end(), p, before), p);
     }
   };
-  const size_t n = nearby.size();
+  const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.magnitude);
   if (n > static_cast<size_t>(k)) {
     // Measure the k smallest box gaps first: their distances bound the k-th distance from the start.
-    std::nth_element(nearby.begin(), nearby.begin() + k, nearby.end(),
+    std::nth_element(nearby, nearby + k, nearby + n,
                      [](const Nearby& x, const Nearby& y) { return x.box_gap2 < y.box_gap2; });
   }
   for (size_t i = 0; i < n; ++i) {
     const Nearby& c = nearby[i];
     if (static_cast<int>(best->size()) == k) {
-      const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.records[c.ia].magnitude);
       const double bound = best->back().first + margin;
       if (c.box_gap2 > bound * bound) continue;
     }
@@ -261,7 +262,8 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   std::vector<int> last_seen(usable_a.size(), -1);
   int stamp = -1;
   std::vector<std::uint8_t> overlap(brute_force ? usable_a.size() + 8 : 0);  // padded to whole 8-byte words
-  std::vector<Nearby> nearby;
+  std::vector<Nearby> nearby(usable_a.size());  // a line of frame a at most once per search
+  size_t nearby_count = 0;
   std::vector<std::pair<double, int>> best;
   // Grids are built for a slightly larger distance: a partner measured within the distance is certainly found.
   auto pass_grid = [&]() -> const SegmentGrid* {
@@ -282,7 +284,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
     auto gather = [&](double distance, const SegmentGrid* grid) {
-      nearby.clear();
+      nearby_count = 0;
       ++stamp;
       const double box_gap = distance * (1.0 + 1e-9) + 1e-9;
       auto consider = [&](int ia) {
@@ -294,7 +296,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
         if (nb_known && r.normal_known && std::abs(r.normal.dot(nb)) / (r.normal_norm * nb_norm) < min_cos_normals)
           return;
         if (std::abs(r.d.dot(db)) > max_cos_lines) return;
-        nearby.push_back({ia, gap_lo.cwiseMax(gap_hi).cwiseMax(0.0).squaredNorm()});
+        nearby[nearby_count++] = {ia, gap_lo.cwiseMax(gap_hi).cwiseMax(0.0).squaredNorm()};
       };
       if (brute_force) {
         // Few pairs: a scan of the boxes costs less than the grid's cell lists.
@@ -322,19 +324,21 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       // k partners lie within near_distance, no partner farther away can displace them.
       if (!brute_force && near_distance < opt.max_distance) {
         if (!indexed.near_grid) indexed.near_grid.emplace(usable_a, near_distance * (1.0 + 1e-6), kNearMaxCells);
-        // The near grid must hold every line the pass grid holds (only absurdly long ones can be missing).
-        if (!indexed.near_grid->left_out_any()) {
+        // The near grid must hold every line the pass grid holds (only absurdly long ones can be missing), and
+        // it saves nothing unless its cells are finer (a large frame coarsens both to the same size).
+        if (!indexed.near_grid->left_out_any() && indexed.near_grid->cell() < pass_grid()->cell()) {
           gather(near_distance, &*indexed.near_grid);
-          closest_partners(nearby, indexed, sb, sb_magnitude, near_distance, k, &best);
+          closest_partners(nearby.data(), nearby_count, indexed, sb, sb_magnitude, near_distance, k, &best);
         }
       }
       if (static_cast<int>(best.size()) < k) {
         gather(opt.max_distance, pass_grid());
-        closest_partners(nearby, indexed, sb, sb_magnitude, opt.max_distance, k, &best);
+        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_magnitude, opt.max_distance, k, &best);
       }
     } else {
       gather(opt.max_distance, pass_grid());
-      for (const Nearby& c : nearby) {
+      for (size_t i = 0; i < nearby_count; ++i) {
+        const Nearby& c = nearby[i];
         const double dist = segment_distance(usable_a[c.ia]->segment, sb);
         if (dist <= opt.max_distance) best.emplace_back(dist, c.ia);
       }
