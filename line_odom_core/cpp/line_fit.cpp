@@ -314,8 +314,9 @@ class ScanLineFitter {
     const Vec3& p2 = buf.p[b];
     const Vec3 v = p2 - p0;
     const double area2 = distance2(p1, p0, v);  // |(p1 - p0) x (p2 - p0)|^2 = (2 area)^2
-    const double side2 = std::max(squared_norm(v), std::max(squared_norm(p1.x() - p0.x(), p1.y() - p0.y(), p1.z() - p0.z()),
-                                                            squared_norm(p2.x() - p1.x(), p2.y() - p1.y(), p2.z() - p1.z())));
+    const double side01 = squared_norm(p1.x() - p0.x(), p1.y() - p0.y(), p1.z() - p0.z());
+    const double side12 = squared_norm(p2.x() - p1.x(), p2.y() - p1.y(), p2.z() - p1.z());
+    const double side2 = std::max(squared_norm(v), std::max(side01, side12));
     const double t = std::max(buf.tau[line.first], std::max(buf.tau[line.last], buf.tau[b]));
     return area2 > 4.0 * (t * t) * side2 * (1.0 + 1e-6);
   }
