@@ -23,19 +23,11 @@ double deg2rad(double deg) { return deg * kPi / 180.0; }
 // reads the cells of its own samples. Cells are a CSR array: a lookup is an index, not a hash probe.
 class SegmentGrid {
  public:
-  SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance, double max_cells)
-      : cell_(1.5 * std::max(max_distance, 1e-3)) {
-    Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-    for (const LineFeature* l : lines) {
-      lo = lo.cwiseMin(l->segment.a).cwiseMin(l->segment.b);
-      hi = hi.cwiseMax(l->segment.a).cwiseMax(l->segment.b);
-    }
-    if (lines.empty() || !lo.allFinite() || !hi.allFinite()) return;
+  SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance, double max_cells) {
+    Vec3 lo, hi;
+    if (!bounds(lines, &lo, &hi)) return;
     const Vec3 extent = hi - lo;
-    // Coarser cells keep any grid (e.g. a frame with a far-away outlier) within a fixed size; correctness only
-    // needs cell >= 1.5 max_distance.
-    auto cells = [&]() { return (extent.array() / cell_ + 5.0).prod(); };
-    while (cells() > max_cells) cell_ *= 2.0;
+    cell_ = cell_for(extent, max_distance, max_cells);
     step_ = cell_ / 3.0;
     origin_ = lo - Vec3::Constant(2.0 * cell_);  // two cells of margin hold the neighbourhoods of the samples
     for (int k = 0; k < 3; ++k) size_[k] = static_cast<int>(extent[k] / cell_) + 5;
@@ -70,7 +62,12 @@ class SegmentGrid {
     for (const auto& e : entries) ids_[fill[e.first]++] = e.second;
   }
 
-  double cell() const { return cell_; }
+  double reach() const { return cell_ / 1.5; }  // segments closer than this have samples in neighbouring cells
+  // The reach of a grid that would be built for these arguments (0 if none would be).
+  static double reach_for(const std::vector<const LineFeature*>& lines, double max_distance, double max_cells) {
+    Vec3 lo, hi;
+    return bounds(lines, &lo, &hi) ? cell_for(hi - lo, max_distance, max_cells) / 1.5 : 0.0;
+  }
   // Whether a segment of finite length was left out as too long for the cells (see for_each_sample_cell).
   bool left_out_any() const { return left_out_any_; }
 
@@ -85,6 +82,23 @@ class SegmentGrid {
   }
 
  private:
+  static bool bounds(const std::vector<const LineFeature*>& lines, Vec3* lo, Vec3* hi) {
+    *lo = Vec3::Constant(std::numeric_limits<double>::infinity());
+    *hi = -*lo;
+    for (const LineFeature* l : lines) {
+      *lo = lo->cwiseMin(l->segment.a).cwiseMin(l->segment.b);
+      *hi = hi->cwiseMax(l->segment.a).cwiseMax(l->segment.b);
+    }
+    return !lines.empty() && lo->allFinite() && hi->allFinite();
+  }
+  // Coarser cells keep any grid (e.g. a frame with a far-away outlier) within a fixed size; correctness only
+  // needs cell >= 1.5 max_distance.
+  static double cell_for(const Vec3& extent, double max_distance, double max_cells) {
+    double cell = 1.5 * std::max(max_distance, 1e-3);
+    while ((extent.array() / cell + 5.0).prod() > max_cells) cell *= 2.0;
+    return cell;
+  }
+
   // Calls f(cell) for each cell of the grid holding a sample of s (consecutive repeats skipped: a straight
   // segment crosses a cell in one run of samples; samples outside the grid are near no bucketed segment).
   template <typename F>
@@ -110,7 +124,7 @@ class SegmentGrid {
   }
 
   static constexpr double kMaxSamples = 4096.0;
-  double cell_, step_ = 1.0, inverse_cell_ = 1.0;
+  double cell_ = 1.0, step_ = 1.0, inverse_cell_ = 1.0;
   bool left_out_any_ = false;
   Vec3 origin_ = Vec3::Zero();
   std::array<int, 3> size_{};
@@ -256,9 +270,17 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   const double max_cos_lines = std::cos(deg2rad(opt.min_line_angle_deg));
   const double min_cos_normals = std::cos(deg2rad(opt.max_normal_angle_deg));
   const int k = opt.max_pairs_per_line;
-  const double near_distance = opt.max_distance * kNearFraction;
 
   const bool brute_force = static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs;
+  // The near search reaches as far as its grid's cells allow (a coarsened grid reaches farther at the same cost);
+  // it is worth a grid only when that is short of the pass distance.
+  double near_distance = -1.0;
+  const double near_build = opt.max_distance * kNearFraction * (1.0 + 1e-6);
+  if (k > 0 && !brute_force && SegmentGrid::reach_for(usable_a, near_build, kNearMaxCells) < opt.max_distance) {
+    indexed.near_grid.emplace(usable_a, near_build, kNearMaxCells);
+    // It must hold every line the pass grid holds (only absurdly long ones can be missing).
+    if (!indexed.near_grid->left_out_any()) near_distance = indexed.near_grid->reach() / (1.0 + 1e-6);
+  }
   std::vector<int> last_seen(usable_a.size(), -1);
   int stamp = -1;
   std::vector<std::uint8_t> overlap(brute_force ? usable_a.size() + 8 : 0);  // padded to whole 8-byte words
@@ -322,14 +344,9 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     if (k > 0) {
       // Most lines have their k closest partners much nearer than the pass distance: look there first. When
       // k partners lie within near_distance, no partner farther away can displace them.
-      if (!brute_force && near_distance < opt.max_distance) {
-        if (!indexed.near_grid) indexed.near_grid.emplace(usable_a, near_distance * (1.0 + 1e-6), kNearMaxCells);
-        // The near grid must hold every line the pass grid holds (only absurdly long ones can be missing), and
-        // it saves nothing unless its cells are finer (a large frame coarsens both to the same size).
-        if (!indexed.near_grid->left_out_any() && indexed.near_grid->cell() < pass_grid()->cell()) {
-          gather(near_distance, &*indexed.near_grid);
-          closest_partners(nearby.data(), nearby_count, indexed, sb, sb_magnitude, near_distance, k, &best);
-        }
+      if (near_distance > 0.0 && near_distance < opt.max_distance) {
+        gather(near_distance, &*indexed.near_grid);
+        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_magnitude, near_distance, k, &best);
       }
       if (static_cast<int>(best.size()) < k) {
         gather(opt.max_distance, pass_grid());
