@@ -159,6 +159,7 @@ struct LineRecord {
 struct IndexedLines {
   std::vector<const LineFeature*> lines;
   std::vector<LineRecord> records;
+  std::vector<PluckerLine> carriers;  // the lines through the segments (from their end points)
   double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
   // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
   std::array<std::vector<float>, 6> box_columns;
@@ -167,6 +168,7 @@ struct IndexedLines {
 
   explicit IndexedLines(const std::vector<LineFeature>& all) : lines(usable(all)) {
     records.resize(lines.size());
+    carriers.resize(lines.size());
     for (auto& c : box_columns) c.resize(lines.size());
     for (size_t i = 0; i < lines.size(); ++i) {
       const LineFeature& l = *lines[i];
@@ -174,6 +176,7 @@ struct IndexedLines {
       r.box_lo = l.segment.a.cwiseMin(l.segment.b);
       r.box_hi = l.segment.a.cwiseMax(l.segment.b);
       r.d = l.line.d;
+      carriers[i] = carrier(l.segment);
       r.normal = l.normal;
       r.normal_norm = l.normal.norm();
       r.normal_known = l.normal.squaredNorm() > 0.25;
@@ -183,6 +186,11 @@ struct IndexedLines {
         box_columns[3 + k][i] = round_up(r.box_hi[k]);
       }
     }
+  }
+
+  static PluckerLine carrier(const Segment& s) {
+    const Vec3 d = (s.b - s.a).normalized();
+    return {d, s.a.cross(d)};
   }
 
   static float round_down(double v) {
@@ -228,8 +236,9 @@ struct Nearby {
 // The k partners closest by (distance, line of frame a) among `nearby`, those within max_distance; the same
 // choice as computing every distance and keeping the k smallest. A partner whose box gap exceeds the k-th
 // distance found so far (with a margin far above rounding) cannot be among them and is not measured.
-void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, const Segment& sb, double sb_magnitude,
-                      double max_distance, int k, std::vector<std::pair<double, int>>* best) {
+void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, const Segment& sb,
+                      const PluckerLine& sb_carrier, double sb_magnitude, double max_distance, int k,
+                      std::vector<std::pair<double, int>>* best) {
   best->clear();
   auto before = [](const std::pair<double, int>& x, const std::pair<double, int>& y) {
     return x.first < y.first || (x.first == y.first && x.second < y.second);
@@ -256,6 +265,11 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
     if (static_cast<int>(best->size()) == k) {
       const double bound = best->back().first + margin;
       if (c.box_gap2 > bound * bound) continue;
+      // The distance between the lines through the segments bounds theirs too: |reciprocal product| / |sine|.
+      const PluckerLine& ca = indexed.carriers[c.ia];
+      const double f = std::abs(ca.d.dot(sb_carrier.m) + sb_carrier.d.dot(ca.m));
+      const double sine = ca.d.cross(sb_carrier.d).norm();
+      if (f > bound * sine * (1.0 + 1e-9) + margin) continue;
     }
     measure(c.ia);
   }
@@ -303,6 +317,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const double nb_norm = nb.norm();
     const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
     const double sb_magnitude = std::max(sb_lo.cwiseAbs().maxCoeff(), sb_hi.cwiseAbs().maxCoeff());
+    const PluckerLine sb_carrier = IndexedLines::carrier(sb);
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
     auto gather = [&](double distance, const SegmentGrid* grid) {
@@ -346,11 +361,11 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       // k partners lie within near_distance, no partner farther away can displace them.
       if (near_distance > 0.0 && near_distance < opt.max_distance) {
         gather(near_distance, &*indexed.near_grid);
-        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_magnitude, near_distance, k, &best);
+        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_carrier, sb_magnitude, near_distance, k, &best);
       }
       if (static_cast<int>(best.size()) < k) {
         gather(opt.max_distance, pass_grid());
-        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_magnitude, opt.max_distance, k, &best);
+        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_carrier, sb_magnitude, opt.max_distance, k, &best);
       }
     } else {
       gather(opt.max_distance, pass_grid());
