@@ -6,6 +6,10 @@
 #include <limits>
 #include <stdexcept>
 
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#include <immintrin.h>
+#endif
+
 namespace line_odom {
 
 namespace {
@@ -38,11 +42,19 @@ inline double fast_atan2(double y, double x) {
   return y < 0.0 ? -r : r;
 }
 
+// Loops that vectorize: an AVX2 clone picked at load time where the CPU has it (no "fma": both clones round
+// alike).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define RANGE_IMAGE_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define RANGE_IMAGE_CLONES
+#endif
+
 // Column coordinate u = (pi - azimuth) cols / 2pi (azimuth = fast_atan2 stored as a float, as always) and range
 // |p| of n points given as arrays. Branch-free (selects) so that the loop vectorizes, with an AVX2 clone picked
 // at load time where the CPU has it: the same IEEE operations per element as fast_atan2 and Vec3::norm, no FMA
 // contraction, hence the same values.
-__attribute__((target_clones("avx2", "default")))
+RANGE_IMAGE_CLONES
 void column_and_range(const double* __restrict X, const double* __restrict Y, const double* __restrict Z, int n,
                       double cols_per_rad, double* __restrict U, double* __restrict R) {
   for (int i = 0; i < n; ++i) {
@@ -182,6 +194,206 @@ struct HalfElevations {
   bool upside_down() const { return n_lo > 0 && n_hi > 0 && sum_lo / n_lo < sum_hi / n_hi; }
 };
 
+
+// Points per block of the ring-order scan (its per-point arrays stay in L1).
+constexpr int kScanBlock = 256;
+// ring_wraps' margin: a point with |y| below it (relative to |x| + |y|) is "near the x axis".
+constexpr double kWrapMarginSine = 1e-5;
+
+// What scan_block found in a block of points.
+struct BlockScan {
+  bool all_ok = true;       // every point finite and not all zero
+  bool maybe_wrap = false;  // some consecutive pair fails ring_wraps' early exit (the ring may wrap there)
+  bool last_above = false;  // the last point is clearly above the x axis
+  double sum_el = 0.0, sum_abs_el = 0.0;  // of el over the block (any order)
+};
+
+// One block of n points (xyz at p[j * stride]) of the ring-order scan: ok[j] (finite and not all zero, as
+// finite_nonzero), el[j] = z / |p| (as HalfElevations::add), and whether ring_wraps' early exit holds for each
+// consecutive pair (the first point pairs with the point before the block when check_first; prev_above is that
+// point's "clearly above"), with the same expressions as ring_wraps: below = y < -m (|x| + |y|), above = y > m (..).
+template <typename T>
+BlockScan scan_block_scalar(const T* p, int n, size_t stride, bool check_first, bool prev_above, std::uint8_t* ok,
+                            double* el) {
+  BlockScan out;
+  bool above_before = check_first ? prev_above : true;
+  for (int j = 0; j < n; ++j) {
+    const T* a = p + static_cast<size_t>(j) * stride;
+    const double x = a[0], y = a[1], z = a[2];
+    ok[j] = finite_nonzero(x, y, z);
+    out.all_ok &= ok[j] != 0;
+    el[j] = z / std::sqrt(x * x + y * y + z * z);
+    out.sum_el += el[j];
+    out.sum_abs_el += std::abs(el[j]);
+    const double s = std::abs(x) + std::abs(y);
+    const bool below = y < -kWrapMarginSine * s, above = y > kWrapMarginSine * s;
+    out.maybe_wrap |= !(below || above_before);
+    above_before = above;
+  }
+  out.last_above = above_before;
+  return out;
+}
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define RANGE_IMAGE_AVX2 1
+// scan_block_scalar four points at a time (AVX2, no FMA: ok, el and the flags are the same values; the sums are
+// added in another order, which their use allows).
+template <typename T>
+__attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, size_t stride, bool check_first,
+                                                          bool prev_above, std::uint8_t* ok, double* el) {
+  BlockScan out;
+  const __m256d zero = _mm256_setzero_pd(), margin = _mm256_set1_pd(kWrapMarginSine),
+                neg_margin = _mm256_set1_pd(-kWrapMarginSine);
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
+  __m256d sum = zero, sum_abs = zero;
+  int ok_bits = 0xF;
+  int wrap_bits = 0;
+  unsigned above_before = check_first ? (prev_above ? 1u : 0u) : 1u;
+  int j = 0;
+  const size_t s1 = stride, s2 = 2 * stride, s3 = 3 * stride;
+  for (; j + 4 <= n; j += 4) {
+    const T* a = p + static_cast<size_t>(j) * stride;
+    const __m256d x = _mm256_set_pd(a[s3], a[s2], a[s1], a[0]);
+    const __m256d y = _mm256_set_pd(a[s3 + 1], a[s2 + 1], a[s1 + 1], a[1]);
+    const __m256d z = _mm256_set_pd(a[s3 + 2], a[s2 + 2], a[s1 + 2], a[2]);
+    const __m256d finite = _mm256_and_pd(
+        _mm256_and_pd(_mm256_cmp_pd(_mm256_sub_pd(x, x), zero, _CMP_EQ_OQ),
+                      _mm256_cmp_pd(_mm256_sub_pd(y, y), zero, _CMP_EQ_OQ)),
+        _mm256_cmp_pd(_mm256_sub_pd(z, z), zero, _CMP_EQ_OQ));
+    const __m256d nonzero = _mm256_or_pd(
+        _mm256_or_pd(_mm256_cmp_pd(x, zero, _CMP_NEQ_UQ), _mm256_cmp_pd(y, zero, _CMP_NEQ_UQ)),
+        _mm256_cmp_pd(z, zero, _CMP_NEQ_UQ));
+    const int okm = _mm256_movemask_pd(_mm256_and_pd(finite, nonzero));
+    ok_bits &= okm;
+    ok[j] = okm & 1;
+    ok[j + 1] = (okm >> 1) & 1;
+    ok[j + 2] = (okm >> 2) & 1;
+    ok[j + 3] = (okm >> 3) & 1;
+    const __m256d norm2 = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(x, x), _mm256_mul_pd(y, y)), _mm256_mul_pd(z, z));
+    const __m256d e = _mm256_div_pd(z, _mm256_sqrt_pd(norm2));
+    _mm256_storeu_pd(el + j, e);
+    sum = _mm256_add_pd(sum, e);
+    sum_abs = _mm256_add_pd(sum_abs, _mm256_and_pd(e, abs_mask));
+    const __m256d sxy = _mm256_add_pd(_mm256_and_pd(x, abs_mask), _mm256_and_pd(y, abs_mask));
+    const unsigned below = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(y, _mm256_mul_pd(neg_margin, sxy), _CMP_LT_OQ)));
+    const unsigned above = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(y, _mm256_mul_pd(margin, sxy), _CMP_GT_OQ)));
+    wrap_bits |= static_cast<int>(~(below | ((above << 1) | above_before)) & 0xFu);
+    above_before = (above >> 3) & 1u;
+  }
+  alignas(32) double lanes[4], lanes_abs[4];
+  _mm256_store_pd(lanes, sum);
+  _mm256_store_pd(lanes_abs, sum_abs);
+  out.sum_el = (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]);
+  out.sum_abs_el = (lanes_abs[0] + lanes_abs[1]) + (lanes_abs[2] + lanes_abs[3]);
+  out.all_ok = ok_bits == 0xF;
+  out.maybe_wrap = wrap_bits != 0;
+  out.last_above = above_before != 0;
+  if (j < n) {
+    const BlockScan tail = scan_block_scalar(p + static_cast<size_t>(j) * stride, n - j, stride, true,
+                                             above_before != 0, ok + j, el + j);
+    out.all_ok &= tail.all_ok;
+    out.maybe_wrap |= tail.maybe_wrap;
+    out.last_above = tail.last_above;
+    out.sum_el += tail.sum_el;
+    out.sum_abs_el += tail.sum_abs_el;
+  }
+  return out;
+}
+#endif
+
+template <typename T>
+BlockScan scan_block(const T* p, int n, size_t stride, bool check_first, bool prev_above, std::uint8_t* ok,
+                     double* el) {
+#ifdef RANGE_IMAGE_AVX2
+  static const bool have_avx2 = (__builtin_cpu_init(), __builtin_cpu_supports("avx2") != 0);
+  if (have_avx2) return scan_block_avx2(p, n, stride, check_first, prev_above, ok, el);
+#endif
+  return scan_block_scalar(p, n, stride, check_first, prev_above, ok, el);
+}
+
+// Ring order by azimuth wraps in one pass over the points: validity, ring starts and the elevation sums of the
+// orientation check. Blocks of points that are all valid and hold no possible wrap (ring_wraps' early exit holds
+// for every consecutive pair) are taken whole; the others point by point as ring_wraps decides. The elevation
+// sums here are added in another order than HalfElevations' (blocks, lanes), so they differ from its sums by
+// rounding only: the orientation they give is taken when it clears that rounding bound by far, else the exact
+// point-order sums decide (HalfElevations over the found rings), so `flipped` is always HalfElevations' answer.
+// Returns the number of rings found (ring_start gets their starts and the end).
+template <typename T>
+int ring_order_scan(const T* data, size_t count, size_t stride, int rows, PointRows* out, OrganizeStats* st) {
+  alignas(64) double el[kScanBlock];
+  double sum_lo = 0.0, sum_hi = 0.0, sum_abs_lo = 0.0, sum_abs_hi = 0.0;
+  size_t n_lo = 0, n_hi = 0;
+  int r = 0;
+  const T* prev = nullptr;
+  bool prev_above = false;  // the point just before the block is clearly above the x axis
+  out->ring_start.reserve(static_cast<size_t>(rows) + 2);
+  out->ring_start.push_back(0);
+  std::uint8_t* ok = out->ok.data();
+  for (size_t b = 0; b < count; b += kScanBlock) {
+    const int n = static_cast<int>(std::min<size_t>(kScanBlock, count - b));
+    const T* p = data + b * stride;
+    // prev is the point just before the block (valid) or there is none
+    const bool prev_is_last = prev != nullptr && prev == p - stride;
+    const BlockScan scan = scan_block(p, n, stride, prev_is_last, prev_above, ok + b, el);
+    if (scan.all_ok && !scan.maybe_wrap && (prev == nullptr || prev_is_last)) {
+      if (r < rows / 2) {
+        sum_lo += scan.sum_el, sum_abs_lo += scan.sum_abs_el, n_lo += static_cast<size_t>(n);
+      } else {
+        sum_hi += scan.sum_el, sum_abs_hi += scan.sum_abs_el, n_hi += static_cast<size_t>(n);
+      }
+      prev = p + static_cast<size_t>(n - 1) * stride;
+    } else {
+      for (int j = 0; j < n; ++j) {
+        const T* a = p + static_cast<size_t>(j) * stride;
+        if (!ok[b + j]) {
+          ++st->invalid_points;
+          continue;
+        }
+        if (prev != nullptr && ring_wraps(prev[0], prev[1], a[0], a[1])) {
+          ++r;
+          out->ring_start.push_back(b + static_cast<size_t>(j));
+        }
+        prev = a;
+        if (r < rows / 2) {
+          sum_lo += el[j], sum_abs_lo += std::abs(el[j]), ++n_lo;
+        } else {
+          sum_hi += el[j], sum_abs_hi += std::abs(el[j]), ++n_hi;
+        }
+      }
+    }
+    prev_above = scan.last_above;
+  }
+  out->ring_start.push_back(count);
+  if (r + 1 != rows || rows < 2) return r + 1;
+  if (n_lo == 0 || n_hi == 0) {
+    out->flipped = false;
+    return r + 1;
+  }
+  // Two summation orders of the same n terms differ by at most 2 n u / (1 - n u) sum|el| (each is within
+  // gamma_n sum|el| of the exact sum, Higham Thm 4.4); the divisions by the counts add u |mean| each, for ours
+  // and for HalfElevations'. The decision is taken only when the gap of the means exceeds 4x all of that.
+  constexpr double u = std::numeric_limits<double>::epsilon() / 2;
+  const double nl = static_cast<double>(n_lo), nh = static_cast<double>(n_hi), nu = static_cast<double>(count) * u;
+  const double mean_lo = sum_lo / nl, mean_hi = sum_hi / nh;
+  const double err_lo = (2.01 * nu * sum_abs_lo + 2.0 * u * sum_abs_lo) / nl;
+  const double err_hi = (2.01 * nu * sum_abs_hi + 2.0 * u * sum_abs_hi) / nh;
+  const double gap = mean_hi - mean_lo;
+  if (nu < 1e-3 && std::isfinite(gap) && std::isfinite(err_lo + err_hi) &&
+      std::abs(gap) > 4.0 * (err_lo + err_hi) + 1e-300) {
+    out->flipped = gap > 0.0;
+    return r + 1;
+  }
+  HalfElevations half;
+  for (int k = 0; k < rows; ++k)
+    for (size_t i = out->ring_start[k]; i < out->ring_start[k + 1]; ++i) {
+      if (!ok[i]) continue;
+      const T* a = data + i * stride;
+      half.add(k < rows / 2, a[0], a[1], a[2]);
+    }
+  out->flipped = half.upside_down();
+  return r + 1;
+}
+
 template <typename T>
 PointRows assign_rows(const T* data, size_t count, size_t stride, const std::int32_t* ring, const SensorModel& model,
                       OrganizeStats* st) {
@@ -189,31 +401,11 @@ PointRows assign_rows(const T* data, size_t count, size_t stride, const std::int
   PointRows out;
   out.ok.resize(count);
   if (ring == nullptr && model.ring_order_from_azimuth_wrap) {
-    // One pass: validity, ring wraps and the elevation sums of the orientation check.
-    HalfElevations half;
-    int r = 0;
-    const T* prev = nullptr;
-    out.ring_start.push_back(0);
-    for (size_t i = 0; i < count; ++i) {
-      const T* p = data + i * stride;
-      out.ok[i] = finite_nonzero(p[0], p[1], p[2]);
-      if (!out.ok[i]) {
-        ++st->invalid_points;
-        continue;
-      }
-      if (prev != nullptr && ring_wraps(prev[0], prev[1], p[0], p[1])) {
-        ++r;
-        out.ring_start.push_back(i);
-      }
-      prev = p;
-      half.add(r < rows / 2, p[0], p[1], p[2]);
-    }
-    out.ring_start.push_back(count);
-    if (r + 1 == rows) {
+    if (ring_order_scan(data, count, stride, rows, &out, st) == rows) {
       st->row_method = "azimuth_wrap";
-      out.flipped = rows > 1 && half.upside_down();
       return out;
     }
+    out.flipped = false;
     out.ring_start.clear();
   } else {
     for (size_t i = 0; i < count; ++i) {
