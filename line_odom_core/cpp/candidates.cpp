@@ -212,6 +212,9 @@ struct IndexedLines {
 };
 
 // overlap[i] = 1 where box i (float columns lo x y z, hi x y z) reaches into `reach` (hi x y z, lo x y z).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+__attribute__((target_clones("avx2", "default")))
+#endif
 void mark_box_overlaps(const std::array<std::vector<float>, 6>& columns, const std::array<float, 6>& reach,
                        std::uint8_t* __restrict overlap) {
   const float* __restrict lx = columns[0].data();
