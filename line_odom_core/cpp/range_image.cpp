@@ -42,21 +42,10 @@ inline double fast_atan2(double y, double x) {
   return y < 0.0 ? -r : r;
 }
 
-// Loops that vectorize: an AVX2 clone picked at load time where the CPU has it (no "fma": both clones round
-// alike).
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define RANGE_IMAGE_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define RANGE_IMAGE_CLONES
-#endif
-
 // Column coordinate u = (pi - azimuth) cols / 2pi (azimuth = fast_atan2 stored as a float, as always) and range
-// |p| of n points given as arrays. Branch-free (selects) so that the loop vectorizes, with an AVX2 clone picked
-// at load time where the CPU has it: the same IEEE operations per element as fast_atan2 and Vec3::norm, no FMA
-// contraction, hence the same values.
-RANGE_IMAGE_CLONES
-void column_and_range(const double* __restrict X, const double* __restrict Y, const double* __restrict Z, int n,
-                      double cols_per_rad, double* __restrict U, double* __restrict R) {
+// |p| of n points given as arrays: the same IEEE operations per element as fast_atan2 and Vec3::norm, as selects.
+void column_and_range_scalar(const double* X, const double* Y, const double* Z, int n, double cols_per_rad,
+                             double* U, double* R) {
   for (int i = 0; i < n; ++i) {
     const double x = X[i], y = Y[i], z = Z[i];
     R[i] = std::sqrt(x * x + y * y + z * z);
@@ -72,6 +61,56 @@ void column_and_range(const double* __restrict X, const double* __restrict Y, co
     const double azimuth = static_cast<float>(r);
     U[i] = (kPi - azimuth) * cols_per_rad;
   }
+}
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define RANGE_IMAGE_AVX2 1
+bool have_avx2() {
+  static const bool yes = (__builtin_cpu_init(), __builtin_cpu_supports("avx2") != 0);
+  return yes;
+}
+
+// column_and_range_scalar four points at a time (AVX2, no FMA): operation for operation, so the same values.
+__attribute__((target("avx2"))) void column_and_range_avx2(const double* X, const double* Y, const double* Z, int n,
+                                                           double cols_per_rad, double* U, double* R) {
+  const __m256d zero = _mm256_setzero_pd();
+  const __m256d sign = _mm256_set1_pd(-0.0);
+  const __m256d pi = _mm256_set1_pd(kPi), half_pi = _mm256_set1_pd(0.5 * kPi), scale = _mm256_set1_pd(cols_per_rad);
+  const __m256d c0 = _mm256_set1_pd(0.99997722), c1 = _mm256_set1_pd(-0.33262284), c2 = _mm256_set1_pd(0.1935404),
+                c3 = _mm256_set1_pd(-0.11642649), c4 = _mm256_set1_pd(0.05264734), c5 = _mm256_set1_pd(-0.01171912);
+  int i = 0;
+  for (; i + 4 <= n; i += 4) {
+    const __m256d x = _mm256_loadu_pd(X + i), y = _mm256_loadu_pd(Y + i), z = _mm256_loadu_pd(Z + i);
+    _mm256_storeu_pd(
+        R + i, _mm256_sqrt_pd(_mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(x, x), _mm256_mul_pd(y, y)),
+                                            _mm256_mul_pd(z, z))));
+    const __m256d ax = _mm256_andnot_pd(sign, x), ay = _mm256_andnot_pd(sign, y);
+    const __m256d hi = _mm256_blendv_pd(ax, ay, _mm256_cmp_pd(ax, ay, _CMP_LT_OQ));
+    const __m256d lo = _mm256_blendv_pd(ax, ay, _mm256_cmp_pd(ay, ax, _CMP_LT_OQ));
+    const __m256d a = _mm256_div_pd(lo, hi), s = _mm256_mul_pd(a, a);
+    __m256d t = _mm256_add_pd(c4, _mm256_mul_pd(s, c5));
+    t = _mm256_add_pd(c3, _mm256_mul_pd(s, t));
+    t = _mm256_add_pd(c2, _mm256_mul_pd(s, t));
+    t = _mm256_add_pd(c1, _mm256_mul_pd(s, t));
+    t = _mm256_add_pd(c0, _mm256_mul_pd(s, t));
+    __m256d r = _mm256_mul_pd(a, t);
+    r = _mm256_blendv_pd(r, _mm256_sub_pd(half_pi, r), _mm256_cmp_pd(ay, ax, _CMP_GT_OQ));
+    r = _mm256_blendv_pd(r, _mm256_sub_pd(pi, r), _mm256_cmp_pd(x, zero, _CMP_LT_OQ));
+    r = _mm256_blendv_pd(r, _mm256_xor_pd(r, sign), _mm256_cmp_pd(y, zero, _CMP_LT_OQ));
+    r = _mm256_andnot_pd(_mm256_cmp_pd(hi, zero, _CMP_EQ_OQ), r);
+    const __m256d azimuth = _mm256_cvtps_pd(_mm256_cvtpd_ps(r));
+    _mm256_storeu_pd(U + i, _mm256_mul_pd(_mm256_sub_pd(pi, azimuth), scale));
+  }
+  column_and_range_scalar(X + i, Y + i, Z + i, n - i, cols_per_rad, U + i, R + i);
+}
+#endif
+
+void column_and_range(const double* X, const double* Y, const double* Z, int n, double cols_per_rad, double* U,
+                      double* R) {
+#ifdef RANGE_IMAGE_AVX2
+  if (have_avx2()) return column_and_range_avx2(X, Y, Z, n, cols_per_rad, U, R);
+#endif
+  column_and_range_scalar(X, Y, Z, n, cols_per_rad, U, R);
 }
 
 bool finite_nonzero(double x, double y, double z) {
@@ -204,6 +243,7 @@ constexpr double kWrapMarginSine = 1e-5;
 struct BlockScan {
   bool all_ok = true;       // every point finite and not all zero
   bool maybe_wrap = false;  // some consecutive pair fails ring_wraps' early exit (the ring may wrap there)
+  std::uint64_t wrap_bits[kScanBlock / 64] = {};  // bit j: the pair (point j - 1, point j) may wrap
   bool last_above = false;  // the last point is clearly above the x axis
   double sum_el = 0.0, sum_abs_el = 0.0;  // of el over the block (any order)
 };
@@ -227,17 +267,18 @@ BlockScan scan_block_scalar(const T* p, int n, size_t stride, bool check_first, 
     out.sum_abs_el += std::abs(el[j]);
     const double s = std::abs(x) + std::abs(y);
     const bool below = y < -kWrapMarginSine * s, above = y > kWrapMarginSine * s;
-    out.maybe_wrap |= !(below || above_before);
+    const bool maybe = !(below || above_before);
+    out.maybe_wrap |= maybe;
+    out.wrap_bits[j >> 6] |= static_cast<std::uint64_t>(maybe) << (j & 63);
     above_before = above;
   }
   out.last_above = above_before;
   return out;
 }
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define RANGE_IMAGE_AVX2 1
-// scan_block_scalar four points at a time (AVX2, no FMA: ok, el and the flags are the same values; the sums are
-// added in another order, which their use allows).
+#ifdef RANGE_IMAGE_AVX2
+// scan_block_scalar four points at a time (AVX2, no FMA): ok, el and the flags are the same values; the sums are
+// added in another order, which their use allows.
 template <typename T>
 __attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, size_t stride, bool check_first,
                                                           bool prev_above, std::uint8_t* ok, double* el) {
@@ -277,7 +318,9 @@ __attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, siz
     const __m256d sxy = _mm256_add_pd(_mm256_and_pd(x, abs_mask), _mm256_and_pd(y, abs_mask));
     const unsigned below = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(y, _mm256_mul_pd(neg_margin, sxy), _CMP_LT_OQ)));
     const unsigned above = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(y, _mm256_mul_pd(margin, sxy), _CMP_GT_OQ)));
-    wrap_bits |= static_cast<int>(~(below | ((above << 1) | above_before)) & 0xFu);
+    const unsigned maybe = ~(below | ((above << 1) | above_before)) & 0xFu;
+    wrap_bits |= static_cast<int>(maybe);
+    out.wrap_bits[j >> 6] |= static_cast<std::uint64_t>(maybe) << (j & 63);
     above_before = (above >> 3) & 1u;
   }
   alignas(32) double lanes[4], lanes_abs[4];
@@ -291,6 +334,8 @@ __attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, siz
   if (j < n) {
     const BlockScan tail = scan_block_scalar(p + static_cast<size_t>(j) * stride, n - j, stride, true,
                                              above_before != 0, ok + j, el + j);
+    // the tail (< 4 points) starts at a multiple of 4: its bits shift into place within one word
+    out.wrap_bits[j >> 6] |= tail.wrap_bits[0] << (j & 63);
     out.all_ok &= tail.all_ok;
     out.maybe_wrap |= tail.maybe_wrap;
     out.last_above = tail.last_above;
@@ -305,8 +350,7 @@ template <typename T>
 BlockScan scan_block(const T* p, int n, size_t stride, bool check_first, bool prev_above, std::uint8_t* ok,
                      double* el) {
 #ifdef RANGE_IMAGE_AVX2
-  static const bool have_avx2 = (__builtin_cpu_init(), __builtin_cpu_supports("avx2") != 0);
-  if (have_avx2) return scan_block_avx2(p, n, stride, check_first, prev_above, ok, el);
+  if (have_avx2()) return scan_block_avx2(p, n, stride, check_first, prev_above, ok, el);
 #endif
   return scan_block_scalar(p, n, stride, check_first, prev_above, ok, el);
 }
@@ -335,12 +379,36 @@ int ring_order_scan(const T* data, size_t count, size_t stride, int rows, PointR
     // prev is the point just before the block (valid) or there is none
     const bool prev_is_last = prev != nullptr && prev == p - stride;
     const BlockScan scan = scan_block(p, n, stride, prev_is_last, prev_above, ok + b, el);
-    if (scan.all_ok && !scan.maybe_wrap && (prev == nullptr || prev_is_last)) {
-      if (r < rows / 2) {
-        sum_lo += scan.sum_el, sum_abs_lo += scan.sum_abs_el, n_lo += static_cast<size_t>(n);
-      } else {
-        sum_hi += scan.sum_el, sum_abs_hi += scan.sum_abs_el, n_hi += static_cast<size_t>(n);
-      }
+    if (scan.all_ok && (prev == nullptr || prev_is_last)) {
+      // Only the flagged pairs can wrap; the elevations of each stretch between wraps go to its ring's half.
+      int stretch = 0;  // first point of the current stretch
+      auto add_stretch = [&](int end, double sum, double sum_abs) {
+        if (r < rows / 2) {
+          sum_lo += sum, sum_abs_lo += sum_abs, n_lo += static_cast<size_t>(end - stretch);
+        } else {
+          sum_hi += sum, sum_abs_hi += sum_abs, n_hi += static_cast<size_t>(end - stretch);
+        }
+      };
+      auto add_points = [&](int end) {
+        double sum = 0.0, sum_abs = 0.0;
+        for (int j = stretch; j < end; ++j) sum += el[j], sum_abs += std::abs(el[j]);
+        add_stretch(end, sum, sum_abs);
+      };
+      bool wrapped = false;
+      for (int w = 0; w < kScanBlock / 64 && scan.maybe_wrap; ++w)
+        for (std::uint64_t bits = scan.wrap_bits[w]; bits != 0; bits &= bits - 1) {
+          const int j = w * 64 + __builtin_ctzll(bits);
+          const T* a = p + static_cast<size_t>(j) * stride;
+          const T* before = j == 0 ? prev : a - stride;
+          if (before == nullptr || !ring_wraps(before[0], before[1], a[0], a[1])) continue;
+          add_points(j);
+          wrapped = true;
+          stretch = j;
+          ++r;
+          out->ring_start.push_back(b + static_cast<size_t>(j));
+        }
+      if (wrapped) add_points(n);
+      else add_stretch(n, scan.sum_el, scan.sum_abs_el);
       prev = p + static_cast<size_t>(n - 1) * stride;
     } else {
       for (int j = 0; j < n; ++j) {
@@ -369,14 +437,15 @@ int ring_order_scan(const T* data, size_t count, size_t stride, int rows, PointR
     out->flipped = false;
     return r + 1;
   }
-  // Two summation orders of the same n terms differ by at most 2 n u / (1 - n u) sum|el| (each is within
-  // gamma_n sum|el| of the exact sum, Higham Thm 4.4); the divisions by the counts add u |mean| each, for ours
-  // and for HalfElevations'. The decision is taken only when the gap of the means exceeds 4x all of that.
+  // The el here are HalfElevations' values, summed in another order. Two summation orders of the same n terms
+  // differ by at most 2 n u / (1 - n u) sum|el| (each is within gamma_n sum|el| of the exact sum, Higham
+  // Thm 4.4); the divisions by the counts add u |mean| each, for ours and for HalfElevations'. The decision is
+  // taken only when the gap of the means exceeds 4x all of that.
   constexpr double u = std::numeric_limits<double>::epsilon() / 2;
   const double nl = static_cast<double>(n_lo), nh = static_cast<double>(n_hi), nu = static_cast<double>(count) * u;
   const double mean_lo = sum_lo / nl, mean_hi = sum_hi / nh;
-  const double err_lo = (2.01 * nu * sum_abs_lo + 2.0 * u * sum_abs_lo) / nl;
-  const double err_hi = (2.01 * nu * sum_abs_hi + 2.0 * u * sum_abs_hi) / nh;
+  const double err_lo = (2.01 * nu + 2.0 * u) * sum_abs_lo / nl;
+  const double err_hi = (2.01 * nu + 2.0 * u) * sum_abs_hi / nh;
   const double gap = mean_hi - mean_lo;
   if (nu < 1e-3 && std::isfinite(gap) && std::isfinite(err_lo + err_hi) &&
       std::abs(gap) > 4.0 * (err_lo + err_hi) + 1e-300) {
