@@ -573,23 +573,33 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
   };
 
   // Valid points of a span in input order as arrays, their columns and ranges in one vectorized pass.
-  std::vector<size_t> index;
-  std::vector<double> X, Y, Z, U, R;
+  size_t capacity = 0;
+  if (!point_rows.ring_start.empty()) {
+    for (int row = 0; row < rows; row += step) {
+      const int k = point_rows.flipped ? rows - 1 - row : row;
+      capacity = std::max(capacity, point_rows.ring_start[k + 1] - point_rows.ring_start[k]);
+    }
+  } else {
+    capacity = count;
+  }
+  std::vector<std::int32_t> index(capacity);
+  std::vector<double> columns(5 * capacity);
+  double* const X = columns.data();
+  double* const Y = X + capacity;
+  double* const Z = Y + capacity;
+  double* const U = Z + capacity;
+  double* const R = U + capacity;
   size_t gathered = 0;
   auto gather = [&](size_t begin, size_t end, auto keep) {
-    if (index.size() < end - begin) {
-      for (auto* v : {&X, &Y, &Z, &U, &R}) v->resize(end - begin);
-      index.resize(end - begin);
-    }
     gathered = 0;
     for (size_t i = begin; i < end; ++i) {
       if (!ok[i] || !keep(i)) continue;
       const T* p = data + i * stride;
-      index[gathered] = i;
+      index[gathered] = static_cast<std::int32_t>(i);
       X[gathered] = p[0], Y[gathered] = p[1], Z[gathered] = p[2];
       ++gathered;
     }
-    column_and_range(X.data(), Y.data(), Z.data(), static_cast<int>(gathered), cols_per_rad, U.data(), R.data());
+    column_and_range(X, Y, Z, static_cast<int>(gathered), cols_per_rad, U, R);
   };
 
   if (!point_rows.ring_start.empty()) {
