@@ -533,27 +533,27 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
   const PointRows point_rows = assign_rows(data, count, stride, ring, model, &st);
   const std::uint8_t* ok = point_rows.ok.data();
 
-  // Cells of the kept rows at full column resolution: the input point in each (-1 = free).
+  // Cells of the kept rows at full column resolution: the input point in each (-1 = free). Rings one at a time
+  // (a point only meets cells of its own row), else all kept rows at once.
+  const bool by_ring = !point_rows.ring_start.empty();
   const int out_rows = (rows + step - 1) / step, out_cols = (cols + step - 1) / step;
-  std::vector<std::int32_t> cell_point(static_cast<size_t>(out_rows) * cols, -1);
+  std::vector<std::int32_t> cell_point(static_cast<size_t>(by_ring ? 1 : out_rows) * cols, -1);
   const double cols_per_rad = cols / (2.0 * kPi);
   auto range_of = [&](size_t i) {
     const T* p = data + i * stride;
     return Vec3(p[0], p[1], p[2]).norm();
   };
-  // Point i (valid, column coordinate u, range) into row `out_row` of the kept rows (-1: in no row, only
-  // counted).
-  auto place = [&](size_t i, int out_row, double u, double range) {
+  // Point i (valid, column coordinate u, range) into the cells of its row (nullptr: in no row, only counted).
+  auto place = [&](size_t i, std::int32_t* row_cells, double u, double range) {
     if (range < limits.min_range || range > limits.max_range) {
       ++st.out_of_range;
       return;
     }
-    if (out_row < 0) return;
+    if (row_cells == nullptr) return;
     int c = static_cast<int>(u);  // u in [0, cols] up to the float rounding of pi
     const double floor_u = static_cast<double>(c) - (static_cast<double>(c) > u ? 1.0 : 0.0);  // std::floor(u)
     if (c >= cols) c -= cols;
     if (c < 0) c += cols;
-    std::int32_t* row_cells = cell_point.data() + static_cast<size_t>(out_row) * cols;
     // Azimuths of one ring are not exactly on a grid: a taken cell sends the point to the free neighbour on
     // its side, then to the other; with all three taken the nearer point keeps the cell. Selects, not
     // branches: which cells are taken is unpredictable.
@@ -574,7 +574,7 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
 
   // Valid points of a span in input order as arrays, their columns and ranges in one vectorized pass.
   size_t capacity = 0;
-  if (!point_rows.ring_start.empty()) {
+  if (by_ring) {
     for (int row = 0; row < rows; row += step) {
       const int k = point_rows.flipped ? rows - 1 - row : row;
       capacity = std::max(capacity, point_rows.ring_start[k + 1] - point_rows.ring_start[k]);
@@ -602,22 +602,6 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
     column_and_range(X, Y, Z, static_cast<int>(gathered), cols_per_rad, U, R);
   };
 
-  if (!point_rows.ring_start.empty()) {
-    for (int out_row = 0; out_row < out_rows; ++out_row) {
-      const int row = out_row * step;
-      const int k = point_rows.flipped ? rows - 1 - row : row;
-      gather(point_rows.ring_start[k], point_rows.ring_start[k + 1], [](size_t) { return true; });
-      for (size_t j = 0; j < gathered; ++j) place(index[j], out_row, U[j], R[j]);
-    }
-  } else {
-    const std::vector<int>& row_of = point_rows.row_of;
-    gather(0, count, [&](size_t i) { return row_of[i] < 0 || row_of[i] % step == 0; });
-    for (size_t j = 0; j < gathered; ++j) {
-      const int r = row_of[index[j]];
-      place(index[j], r < 0 ? -1 : r / step, U[j], R[j]);
-    }
-  }
-
   RangeImage img;
   img.rows = out_rows;
   img.cols = out_cols;
@@ -625,10 +609,11 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
   img.points.resize(n_out);
   img.valid.resize(n_out);
   img.source_index.resize(n_out);
-  for (int r = 0; r < out_rows; ++r)
+  // Row `out_row` of the image from its cells (every step-th column).
+  auto fill_row = [&](int out_row, const std::int32_t* row_cells) {
     for (int c = 0; c < out_cols; ++c) {
-      const size_t cell = static_cast<size_t>(r) * out_cols + c;
-      const std::int32_t i = cell_point[static_cast<size_t>(r) * cols + static_cast<size_t>(c) * step];
+      const size_t cell = static_cast<size_t>(out_row) * out_cols + c;
+      const std::int32_t i = row_cells[static_cast<size_t>(c) * step];
       img.source_index[cell] = i;
       img.valid[cell] = i >= 0;
       if (i >= 0) {
@@ -639,6 +624,28 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
         img.points[cell] = Vec3::Zero();
       }
     }
+  };
+
+  if (by_ring) {
+    std::int32_t* const row_cells = cell_point.data();
+    for (int out_row = 0; out_row < out_rows; ++out_row) {
+      const int row = out_row * step;
+      const int k = point_rows.flipped ? rows - 1 - row : row;
+      if (out_row > 0) std::fill(cell_point.begin(), cell_point.end(), -1);
+      gather(point_rows.ring_start[k], point_rows.ring_start[k + 1], [](size_t) { return true; });
+      for (size_t j = 0; j < gathered; ++j) place(index[j], row_cells, U[j], R[j]);
+      fill_row(out_row, row_cells);
+    }
+  } else {
+    const std::vector<int>& row_of = point_rows.row_of;
+    gather(0, count, [&](size_t i) { return row_of[i] < 0 || row_of[i] % step == 0; });
+    for (size_t j = 0; j < gathered; ++j) {
+      const int r = row_of[index[j]];
+      place(index[j], r < 0 ? nullptr : cell_point.data() + static_cast<size_t>(r / step) * cols, U[j], R[j]);
+    }
+    for (int out_row = 0; out_row < out_rows; ++out_row)
+      fill_row(out_row, cell_point.data() + static_cast<size_t>(out_row) * cols);
+  }
   if (stats) *stats = st;
   return img;
 }
