@@ -4,6 +4,7 @@
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <cstring>
 #include <stdexcept>
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
@@ -277,6 +278,19 @@ BlockScan scan_block_scalar(const T* p, int n, size_t stride, bool check_first, 
 }
 
 #ifdef RANGE_IMAGE_AVX2
+// Bytes 0/1 of a 4-bit mask, lowest bit first in memory (little-endian).
+constexpr std::uint32_t kMaskBytes[16] = {
+    0x00000000, 0x00000001, 0x00000100, 0x00000101, 0x00010000, 0x00010001, 0x00010100, 0x00010101,
+    0x01000000, 0x01000001, 0x01000100, 0x01000101, 0x01010000, 0x01010001, 0x01010100, 0x01010101};
+
+// Points 0, s1, s2, s3 of a strided array as doubles (exact for float input).
+__attribute__((target("avx2"))) inline __m256d load4(const double* a, size_t s1, size_t s2, size_t s3) {
+  return _mm256_set_pd(a[s3], a[s2], a[s1], a[0]);
+}
+__attribute__((target("avx2"))) inline __m256d load4(const float* a, size_t s1, size_t s2, size_t s3) {
+  return _mm256_cvtps_pd(_mm_set_ps(a[s3], a[s2], a[s1], a[0]));
+}
+
 // scan_block_scalar four points at a time (AVX2, no FMA): ok, el and the flags are the same values; the sums are
 // added in another order, which their use allows.
 template <typename T>
@@ -288,48 +302,45 @@ __attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, siz
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
   __m256d sum = zero, sum_abs = zero;
   int ok_bits = 0xF;
-  int wrap_bits = 0;
+  std::uint64_t wrap_words[kScanBlock / 64] = {};
   unsigned above_before = check_first ? (prev_above ? 1u : 0u) : 1u;
   int j = 0;
   const size_t s1 = stride, s2 = 2 * stride, s3 = 3 * stride;
   for (; j + 4 <= n; j += 4) {
     const T* a = p + static_cast<size_t>(j) * stride;
-    const __m256d x = _mm256_set_pd(a[s3], a[s2], a[s1], a[0]);
-    const __m256d y = _mm256_set_pd(a[s3 + 1], a[s2 + 1], a[s1 + 1], a[1]);
-    const __m256d z = _mm256_set_pd(a[s3 + 2], a[s2 + 2], a[s1 + 2], a[2]);
-    const __m256d finite = _mm256_and_pd(
-        _mm256_and_pd(_mm256_cmp_pd(_mm256_sub_pd(x, x), zero, _CMP_EQ_OQ),
-                      _mm256_cmp_pd(_mm256_sub_pd(y, y), zero, _CMP_EQ_OQ)),
-        _mm256_cmp_pd(_mm256_sub_pd(z, z), zero, _CMP_EQ_OQ));
-    const __m256d nonzero = _mm256_or_pd(
-        _mm256_or_pd(_mm256_cmp_pd(x, zero, _CMP_NEQ_UQ), _mm256_cmp_pd(y, zero, _CMP_NEQ_UQ)),
-        _mm256_cmp_pd(z, zero, _CMP_NEQ_UQ));
+    const __m256d x = load4(a, s1, s2, s3), y = load4(a + 1, s1, s2, s3), z = load4(a + 2, s1, s2, s3);
+    const __m256d ax = _mm256_and_pd(x, abs_mask), ay = _mm256_and_pd(y, abs_mask);
+    const __m256d sxy = _mm256_add_pd(ax, ay);
+    // finite: (x - x) + (y - y) + (z - z) is 0, NaN when any is inf or NaN; not all zero (given finite): the sum
+    // of the magnitudes is > 0 (a sum of non-negative numbers rounds to 0 only when all are 0)
+    const __m256d finite =
+        _mm256_cmp_pd(_mm256_add_pd(_mm256_add_pd(_mm256_sub_pd(x, x), _mm256_sub_pd(y, y)), _mm256_sub_pd(z, z)),
+                      zero, _CMP_EQ_OQ);
+    const __m256d nonzero = _mm256_cmp_pd(_mm256_add_pd(sxy, _mm256_and_pd(z, abs_mask)), zero, _CMP_GT_OQ);
     const int okm = _mm256_movemask_pd(_mm256_and_pd(finite, nonzero));
     ok_bits &= okm;
-    ok[j] = okm & 1;
-    ok[j + 1] = (okm >> 1) & 1;
-    ok[j + 2] = (okm >> 2) & 1;
-    ok[j + 3] = (okm >> 3) & 1;
+    const std::uint32_t ok4 = kMaskBytes[okm];
+    std::memcpy(ok + j, &ok4, 4);
     const __m256d norm2 = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(x, x), _mm256_mul_pd(y, y)), _mm256_mul_pd(z, z));
     const __m256d e = _mm256_div_pd(z, _mm256_sqrt_pd(norm2));
     _mm256_storeu_pd(el + j, e);
     sum = _mm256_add_pd(sum, e);
     sum_abs = _mm256_add_pd(sum_abs, _mm256_and_pd(e, abs_mask));
-    const __m256d sxy = _mm256_add_pd(_mm256_and_pd(x, abs_mask), _mm256_and_pd(y, abs_mask));
     const unsigned below = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(y, _mm256_mul_pd(neg_margin, sxy), _CMP_LT_OQ)));
     const unsigned above = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(y, _mm256_mul_pd(margin, sxy), _CMP_GT_OQ)));
     const unsigned maybe = ~(below | ((above << 1) | above_before)) & 0xFu;
-    wrap_bits |= static_cast<int>(maybe);
-    out.wrap_bits[j >> 6] |= static_cast<std::uint64_t>(maybe) << (j & 63);
+    wrap_words[j >> 6] |= static_cast<std::uint64_t>(maybe) << (j & 63);
     above_before = (above >> 3) & 1u;
   }
+  bool any_wrap = false;
+  for (int w = 0; w < kScanBlock / 64; ++w) out.wrap_bits[w] = wrap_words[w], any_wrap |= wrap_words[w] != 0;
   alignas(32) double lanes[4], lanes_abs[4];
   _mm256_store_pd(lanes, sum);
   _mm256_store_pd(lanes_abs, sum_abs);
   out.sum_el = (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]);
   out.sum_abs_el = (lanes_abs[0] + lanes_abs[1]) + (lanes_abs[2] + lanes_abs[3]);
   out.all_ok = ok_bits == 0xF;
-  out.maybe_wrap = wrap_bits != 0;
+  out.maybe_wrap = any_wrap;
   out.last_above = above_before != 0;
   if (j < n) {
     const BlockScan tail = scan_block_scalar(p + static_cast<size_t>(j) * stride, n - j, stride, true,
