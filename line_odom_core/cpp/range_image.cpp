@@ -563,17 +563,24 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
     if (row_cells == nullptr) return;
     int c = static_cast<int>(u);  // u in [0, cols] up to the float rounding of pi
     const double floor_u = static_cast<double>(c) - (static_cast<double>(c) > u ? 1.0 : 0.0);  // std::floor(u)
-    if (c >= cols) c -= cols;
-    if (c < 0) c += cols;
     // Azimuths of one ring are not exactly on a grid: a taken cell sends the point to the free neighbour on
     // its side, then to the other; with all three taken the nearer point keeps the cell. Selects, not
     // branches: which cells are taken is unpredictable.
     const int side = (u - floor_u < 0.5) ? -1 : 1;
-    int n1 = c + side, n2 = c - side;
-    n1 += n1 < 0 ? cols : 0;
-    n1 -= n1 >= cols ? cols : 0;
-    n2 += n2 < 0 ? cols : 0;
-    n2 -= n2 >= cols ? cols : 0;
+    int n1, n2;
+    if (c >= 1 && c <= cols - 2) {  // neither c nor its neighbours wrap around (all but the edge columns)
+      n1 = c + side;
+      n2 = c - side;
+    } else {
+      if (c >= cols) c -= cols;
+      if (c < 0) c += cols;
+      n1 = c + side;
+      n2 = c - side;
+      n1 += n1 < 0 ? cols : 0;
+      n1 -= n1 >= cols ? cols : 0;
+      n2 += n2 < 0 ? cols : 0;
+      n2 -= n2 >= cols ? cols : 0;
+    }
     const bool free_c = row_cells[c] < 0, free_1 = row_cells[n1] < 0, free_2 = row_cells[n2] < 0;
     const int cell = free_c ? c : free_1 ? n1 : free_2 ? n2 : c;
     if (!(free_c | free_1 | free_2)) {
