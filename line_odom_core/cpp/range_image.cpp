@@ -190,13 +190,16 @@ double wrap_azimuth(double x, double y) {
   return az;
 }
 
+// ring_wraps' margin: a point with |y| below it (relative to |x| + |y|) is "near the x axis".
+constexpr double kWrapMarginSine = 1e-5;
+
 // Does the ring wrap between the previous point p and the current point a, i.e. is azimuth(a) < azimuth(p) - pi?
 // With azimuths in [0, 2pi) that holds exactly when p is below the x axis, a above it and a -> p turns clockwise
 // (cross product < 0). Those signs decide unless a point or the angle between them is within ~1e-5 rad of a
 // boundary; then the azimuths themselves decide (fast_atan2's 2e-6 rad error and the float rounding are far
 // inside that margin), so the rings are exactly those of the azimuth test.
 bool ring_wraps(double px, double py, double ax, double ay) {
-  constexpr double kMarginSine = 1e-5;
+  constexpr double kMarginSine = kWrapMarginSine;
   const double sp = std::abs(px) + std::abs(py), sa = std::abs(ax) + std::abs(ay);
   // a clearly below the axis (azimuth > pi) or p clearly above it (< pi): no wrap, the common case
   if (ay < -kMarginSine * sa || py > kMarginSine * sp) return false;
@@ -234,11 +237,8 @@ struct HalfElevations {
   bool upside_down() const { return n_lo > 0 && n_hi > 0 && sum_lo / n_lo < sum_hi / n_hi; }
 };
 
-
 // Points per block of the ring-order scan (its per-point arrays stay in L1).
 constexpr int kScanBlock = 256;
-// ring_wraps' margin: a point with |y| below it (relative to |x| + |y|) is "near the x axis".
-constexpr double kWrapMarginSine = 1e-5;
 
 // What scan_block found in a block of points.
 struct BlockScan {
