@@ -2,9 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <functional>
 #include <limits>
-#include <cstring>
+#include <memory>
 #include <stdexcept>
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
@@ -600,9 +601,10 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
   } else {
     capacity = count;
   }
-  std::vector<std::int32_t> index(capacity);
-  std::vector<double> columns(5 * capacity);
-  double* const X = columns.data();
+  // (written before read: no zeroing)
+  const std::unique_ptr<std::int32_t[]> index(new std::int32_t[std::max<size_t>(capacity, 1)]);
+  const std::unique_ptr<double[]> columns(new double[std::max<size_t>(5 * capacity, 1)]);
+  double* const X = columns.get();
   double* const Y = X + capacity;
   double* const Z = Y + capacity;
   double* const U = Z + capacity;
