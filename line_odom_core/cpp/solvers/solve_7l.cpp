@@ -10,6 +10,7 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "solvers/solver_input.hpp"
 
@@ -56,11 +57,12 @@ RigidTransform exp_left(const Vec6& xi, const RigidTransform& T) {
   return {dR * T.R, dR * T.t + xi.tail<3>()};
 }
 
+// Leaves r and J at the returned pose in *r_out and *J_out (the final acceptance test reuses them).
 bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solve7LOptions& options,
-                  RigidTransform* T_out, int* iterations) {
+                  RigidTransform* T_out, int* iterations, Vec7* r_out, Mat76* J_out) {
   RigidTransform T = init;
-  Vec7 r;
-  Mat76 J;
+  Vec7& r = *r_out;
+  Mat76& J = *J_out;
   residuals(lines, T, &r, &J);
   double cost = r.squaredNorm();
   double damping = 1e-9;
@@ -213,6 +215,70 @@ bool alternating_projection(const std::array<Segment, 7>& segments_a, const std:
   return converged;
 }
 
+
+// U V^T of the SVD U S V^T of R (the nearest orthogonal matrix). RANSAC passes the same guess for every sample
+// of a frame, so the last result is kept per thread and reused for a bit-identical input.
+Mat3 nearest_rotation(const Mat3& R) {
+  struct Cache {
+    double in[9];
+    double out[9];
+    bool valid;
+  };
+  static thread_local Cache cache{};
+  if (cache.valid && std::memcmp(cache.in, R.data(), sizeof(cache.in)) == 0) return Eigen::Map<const Mat3>(cache.out);
+  const Eigen::JacobiSVD<Mat3> svd(R, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Mat3 Q = svd.matrixU() * svd.matrixV().transpose();
+  std::memcpy(cache.in, R.data(), sizeof(cache.in));
+  std::memcpy(cache.out, Q.data(), sizeof(cache.out));
+  cache.valid = true;
+  return Q;
+}
+
+// Cheap sufficient test for the rank check sigma_min(J) > kMinSingularRatio sigma_max(J) done by the SVD below.
+// With H = J^T J = L D L^T: sigma_max^2 <= trace(H) and sigma_min^2 >= 1 / trace(H^-1), trace(H^-1) = sum_i
+// |row i of L^-1|^2 / d_i. True when trace(H) trace(H^-1) < 1e10, i.e. the ratio is provably above 1e-5: 100x
+// the threshold, far beyond the rounding of H, of the factorization (relative ~1e-14 of trace(H)) and of the SVD
+// itself, so the SVD would accept too. False (run the SVD) in every other case, incl. non-finite or extreme scales.
+bool clearly_full_rank(const Mat76& J) {
+  double H[6][6];
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double s = 0.0;
+      for (int k = 0; k < 7; ++k) s += J(k, i) * J(k, j);
+      H[i][j] = s;
+    }
+  double trace = 0.0;
+  for (int i = 0; i < 6; ++i) trace += H[i][i];
+  if (!(trace > 1e-150 && trace < 1e150)) return false;
+  // H = L D L^T (unit lower L; stored below the diagonal of H, D on it)
+  double d[6];
+  for (int j = 0; j < 6; ++j) {
+    double dj = H[j][j];
+    for (int k = 0; k < j; ++k) dj -= H[j][k] * H[j][k] * d[k];
+    if (!(dj > 1e-12 * trace)) return false;  // ratio below 1e-6 (or NaN): leave it to the SVD
+    d[j] = dj;
+    for (int i = j + 1; i < 6; ++i) {
+      double s = H[i][j];
+      for (int k = 0; k < j; ++k) s -= H[i][k] * H[j][k] * d[k];
+      H[i][j] = s / dj;
+    }
+  }
+  // X = L^-1 (unit lower), row by row; trace(H^-1) = sum_{i,k} X_ik^2 / d_i
+  double X[6][6];
+  double trace_inv = 0.0;
+  for (int i = 0; i < 6; ++i) {
+    for (int k = 0; k < i; ++k) {
+      double s = -H[i][k];
+      for (int m = k + 1; m < i; ++m) s -= H[i][m] * X[m][k];
+      X[i][k] = s;
+    }
+    X[i][i] = 1.0;
+    double row = 1.0;
+    for (int k = 0; k < i; ++k) row += X[i][k] * X[i][k];
+    trace_inv += row / d[i];
+  }
+  return trace * trace_inv < 1e10;
+}
 }  // namespace
 
 int solve_7l(const std::array<Segment, 7>& segments_a, const std::array<Segment, 7>& segments_b,
@@ -236,20 +302,24 @@ int solve_7l(const std::array<Segment, 7>& segments_a, const std::array<Segment,
   RigidTransform T;
   // start from a proper rotation even if the guess is slightly off SO(3)
   RigidTransform start = init;
-  const Eigen::JacobiSVD<Mat3> svd(init.R, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  start.R = svd.matrixU() * svd.matrixV().transpose();
+  start.R = nearest_rotation(init.R);
   if (start.R.determinant() < 0.0) return 0;
-  if (options.method == Solve7LMethod::kGaussNewton) {
-    st.converged = gauss_newton(lines, start, options, &T, &st.iterations);
-  } else {
-    st.converged = alternating_projection(segments_a, segments_b, start, options, &T, &st.iterations);
-  }
-  if (!T.is_finite()) return 0;
   Vec7 r;
   Mat76 J;
-  residuals(lines, T, &r, &J);
+  if (options.method == Solve7LMethod::kGaussNewton) {
+    st.converged = gauss_newton(lines, start, options, &T, &st.iterations, &r, &J);
+    if (!T.is_finite()) return 0;
+  } else {
+    st.converged = alternating_projection(segments_a, segments_b, start, options, &T, &st.iterations);
+    if (!T.is_finite()) return 0;
+    residuals(lines, T, &r, &J);
+  }
   st.residual = r.cwiseAbs().maxCoeff();
   if (!st.converged || !(st.residual <= options.max_residual)) return 0;
+  if (clearly_full_rank(J)) {
+    *solution = T;
+    return 1;
+  }
   const Eigen::JacobiSVD<Mat76> jacobian_svd(J);  // singular values only, fixed size: no allocation
   const double hi = jacobian_svd.singularValues()(0), lo = jacobian_svd.singularValues()(5);
   if (!(hi > 0.0) || !(lo > kMinSingularRatio * hi)) return 0;
