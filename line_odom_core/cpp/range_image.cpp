@@ -44,12 +44,28 @@ inline double fast_atan2(double y, double x) {
   return y < 0.0 ? -r : r;
 }
 
+// Points for column_and_range: three arrays, or xyz at p[i * stride].
+struct PointArrays {
+  const double *X, *Y, *Z;
+  double x(size_t i) const { return X[i]; }
+  double y(size_t i) const { return Y[i]; }
+  double z(size_t i) const { return Z[i]; }
+};
+template <typename T>
+struct StridedPoints {
+  const T* p;
+  size_t stride;
+  double x(size_t i) const { return p[i * stride]; }
+  double y(size_t i) const { return p[i * stride + 1]; }
+  double z(size_t i) const { return p[i * stride + 2]; }
+};
+
 // Column coordinate u = (pi - azimuth) cols / 2pi (azimuth = fast_atan2 stored as a float, as always) and range
-// |p| of n points given as arrays: the same IEEE operations per element as fast_atan2 and Vec3::norm, as selects.
-void column_and_range_scalar(const double* X, const double* Y, const double* Z, int n, double cols_per_rad,
-                             double* U, double* R) {
+// |p| of points [begin, begin + n): the same IEEE operations per element as fast_atan2 and Vec3::norm, as selects.
+template <typename Points>
+void column_and_range_scalar(const Points& pts, size_t begin, int n, double cols_per_rad, double* U, double* R) {
   for (int i = 0; i < n; ++i) {
-    const double x = X[i], y = Y[i], z = Z[i];
+    const double x = pts.x(begin + i), y = pts.y(begin + i), z = pts.z(begin + i);
     R[i] = std::sqrt(x * x + y * y + z * z);
     const double ax = std::abs(x), ay = std::abs(y);
     const double hi = ax < ay ? ay : ax, lo = ay < ax ? ay : ax;
@@ -72,8 +88,32 @@ bool have_avx2() {
   return yes;
 }
 
+// Points i .. i + 3 as doubles (exact for float input).
+__attribute__((target("avx2"))) inline void load4(const PointArrays& pts, size_t i, __m256d* x, __m256d* y,
+                                                  __m256d* z) {
+  *x = _mm256_loadu_pd(pts.X + i);
+  *y = _mm256_loadu_pd(pts.Y + i);
+  *z = _mm256_loadu_pd(pts.Z + i);
+}
+__attribute__((target("avx2"))) inline __m256d load4(const double* a, size_t s1, size_t s2, size_t s3) {
+  return _mm256_set_pd(a[s3], a[s2], a[s1], a[0]);
+}
+__attribute__((target("avx2"))) inline __m256d load4(const float* a, size_t s1, size_t s2, size_t s3) {
+  return _mm256_cvtps_pd(_mm_set_ps(a[s3], a[s2], a[s1], a[0]));
+}
+template <typename T>
+__attribute__((target("avx2"))) inline void load4(const StridedPoints<T>& pts, size_t i, __m256d* x, __m256d* y,
+                                                  __m256d* z) {
+  const T* a = pts.p + i * pts.stride;
+  const size_t s1 = pts.stride, s2 = 2 * pts.stride, s3 = 3 * pts.stride;
+  *x = load4(a, s1, s2, s3);
+  *y = load4(a + 1, s1, s2, s3);
+  *z = load4(a + 2, s1, s2, s3);
+}
+
 // column_and_range_scalar four points at a time (AVX2, no FMA): operation for operation, so the same values.
-__attribute__((target("avx2"))) void column_and_range_avx2(const double* X, const double* Y, const double* Z, int n,
+template <typename Points>
+__attribute__((target("avx2"))) void column_and_range_avx2(const Points& pts, size_t begin, int n,
                                                            double cols_per_rad, double* U, double* R) {
   const __m256d zero = _mm256_setzero_pd();
   const __m256d sign = _mm256_set1_pd(-0.0);
@@ -82,7 +122,8 @@ __attribute__((target("avx2"))) void column_and_range_avx2(const double* X, cons
                 c3 = _mm256_set1_pd(-0.11642649), c4 = _mm256_set1_pd(0.05264734), c5 = _mm256_set1_pd(-0.01171912);
   int i = 0;
   for (; i + 4 <= n; i += 4) {
-    const __m256d x = _mm256_loadu_pd(X + i), y = _mm256_loadu_pd(Y + i), z = _mm256_loadu_pd(Z + i);
+    __m256d x, y, z;
+    load4(pts, begin + static_cast<size_t>(i), &x, &y, &z);
     _mm256_storeu_pd(
         R + i, _mm256_sqrt_pd(_mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(x, x), _mm256_mul_pd(y, y)),
                                             _mm256_mul_pd(z, z))));
@@ -103,16 +144,16 @@ __attribute__((target("avx2"))) void column_and_range_avx2(const double* X, cons
     const __m256d azimuth = _mm256_cvtps_pd(_mm256_cvtpd_ps(r));
     _mm256_storeu_pd(U + i, _mm256_mul_pd(_mm256_sub_pd(pi, azimuth), scale));
   }
-  column_and_range_scalar(X + i, Y + i, Z + i, n - i, cols_per_rad, U + i, R + i);
+  column_and_range_scalar(pts, begin + static_cast<size_t>(i), n - i, cols_per_rad, U + i, R + i);
 }
 #endif
 
-void column_and_range(const double* X, const double* Y, const double* Z, int n, double cols_per_rad, double* U,
-                      double* R) {
+template <typename Points>
+void column_and_range(const Points& pts, size_t begin, int n, double cols_per_rad, double* U, double* R) {
 #ifdef RANGE_IMAGE_AVX2
-  if (have_avx2()) return column_and_range_avx2(X, Y, Z, n, cols_per_rad, U, R);
+  if (have_avx2()) return column_and_range_avx2(pts, begin, n, cols_per_rad, U, R);
 #endif
-  column_and_range_scalar(X, Y, Z, n, cols_per_rad, U, R);
+  column_and_range_scalar(pts, begin, n, cols_per_rad, U, R);
 }
 
 bool finite_nonzero(double x, double y, double z) {
@@ -283,14 +324,6 @@ BlockScan scan_block_scalar(const T* p, int n, size_t stride, bool check_first, 
 constexpr std::uint32_t kMaskBytes[16] = {
     0x00000000, 0x00000001, 0x00000100, 0x00000101, 0x00010000, 0x00010001, 0x00010100, 0x00010101,
     0x01000000, 0x01000001, 0x01000100, 0x01000101, 0x01010000, 0x01010001, 0x01010100, 0x01010101};
-
-// Points 0, s1, s2, s3 of a strided array as doubles (exact for float input).
-__attribute__((target("avx2"))) inline __m256d load4(const double* a, size_t s1, size_t s2, size_t s3) {
-  return _mm256_set_pd(a[s3], a[s2], a[s1], a[0]);
-}
-__attribute__((target("avx2"))) inline __m256d load4(const float* a, size_t s1, size_t s2, size_t s3) {
-  return _mm256_cvtps_pd(_mm_set_ps(a[s3], a[s2], a[s1], a[0]));
-}
 
 // scan_block_scalar four points at a time (AVX2, no FMA): ok, el and the flags are the same values; the sums are
 // added in another order, which their use allows.
@@ -619,7 +652,7 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
       X[gathered] = p[0], Y[gathered] = p[1], Z[gathered] = p[2];
       ++gathered;
     }
-    column_and_range(X, Y, Z, static_cast<int>(gathered), cols_per_rad, U, R);
+    column_and_range(PointArrays{X, Y, Z}, 0, static_cast<int>(gathered), cols_per_rad, U, R);
   };
 
   RangeImage img;
@@ -652,8 +685,11 @@ RangeImage organize_points_impl(const T* data, size_t count, size_t stride, cons
       const int row = out_row * step;
       const int k = point_rows.flipped ? rows - 1 - row : row;
       if (out_row > 0) std::fill(cell_point.begin(), cell_point.end(), -1);
-      gather(point_rows.ring_start[k], point_rows.ring_start[k + 1], [](size_t) { return true; });
-      for (size_t j = 0; j < gathered; ++j) place(index[j], row_cells, U[j], R[j]);
+      // the ring's points straight from the input (no gather; invalid ones get columns that are not used)
+      const size_t begin = point_rows.ring_start[k], end = point_rows.ring_start[k + 1];
+      column_and_range(StridedPoints<T>{data, stride}, begin, static_cast<int>(end - begin), cols_per_rad, U, R);
+      for (size_t i = begin; i < end; ++i)
+        if (ok[i]) place(i, row_cells, U[i - begin], R[i - begin]);
       fill_row(out_row, row_cells);
     }
   } else {
