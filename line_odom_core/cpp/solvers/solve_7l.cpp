@@ -30,22 +30,64 @@ struct LinePairs {
   std::array<PluckerLine, 7> a, b;
 };
 
-// Signed distances r_i between line a_i and T b_i, and their Jacobian for T <- exp(xi) T, xi = (omega, v).
-void residuals(const LinePairs& lines, const RigidTransform& T, Vec7* r, Mat76* J) {
+// Line b_i moved by T (d', m') and the terms of its signed distance to line a_i: c = d_a x d', n = max(|c|, floor),
+// e = d_a·m' + d'·m_a, r_i = e / n. Scalar code with the operations (and their order) Eigen uses for the same
+// expressions: rows 0, 1 of R x as (r0 x0 + r1 x1) + r2 x2, row 2 as r0 x0 + (r1 x1 + r2 x2); dot products and
+// norms as (p0 + p1) + p2.
+struct MovedPair {
+  double d[3], m[3], c[3], n, e;
+};
+using MovedPairs = std::array<MovedPair, 7>;
+
+inline void mat_vec(const Mat3& R, const double* x, double* y) {
+  y[0] = (R(0, 0) * x[0] + R(0, 1) * x[1]) + R(0, 2) * x[2];
+  y[1] = (R(1, 0) * x[0] + R(1, 1) * x[1]) + R(1, 2) * x[2];
+  y[2] = R(2, 0) * x[0] + (R(2, 1) * x[1] + R(2, 2) * x[2]);
+}
+
+inline void cross(const double* a, const double* b, double* c) {
+  c[0] = a[1] * b[2] - a[2] * b[1];
+  c[1] = a[2] * b[0] - a[0] * b[2];
+  c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+inline double dot(const double* a, const double* b) { return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]; }
+
+// Signed distances r_i between line a_i and T b_i (and the terms the Jacobian needs).
+void residuals(const LinePairs& lines, const RigidTransform& T, Vec7* r, MovedPairs* P) {
+  const double t[3] = {T.t(0), T.t(1), T.t(2)};
   for (int i = 0; i < 7; ++i) {
-    const PluckerLine& la = lines.a[i];
-    const PluckerLine lb = lines.b[i].moved(T);
-    const Vec3 c = la.d.cross(lb.d);
-    const double n = std::max(c.norm(), kMinLineSine);
-    const double e = la.d.dot(lb.m) + lb.d.dot(la.m);
-    (*r)(i) = e / n;
-    if (J) {
-      // de = omega·(m' x d_a + d' x m_a) + v·(d' x d_a);  dn = (d_a·d') c·omega / n
-      const Vec3 de_domega = lb.m.cross(la.d) + lb.d.cross(la.m);
-      const Vec3 de_dv = lb.d.cross(la.d);
-      const Vec3 dn_domega = (la.d.dot(lb.d) / n) * c;
-      J->block<1, 3>(i, 0) = (de_domega / n - (e / (n * n)) * dn_domega).transpose();
-      J->block<1, 3>(i, 3) = (de_dv / n).transpose();
+    const double* da = lines.a[i].d.data();
+    const double* ma = lines.a[i].m.data();
+    MovedPair& p = (*P)[i];
+    double Rm[3], txd[3];
+    mat_vec(T.R, lines.b[i].d.data(), p.d);  // d' = R d
+    mat_vec(T.R, lines.b[i].m.data(), Rm);
+    cross(t, p.d, txd);
+    for (int k = 0; k < 3; ++k) p.m[k] = Rm[k] + txd[k];  // m' = R m + t x d'
+    cross(da, p.d, p.c);
+    p.n = std::max(std::sqrt(dot(p.c, p.c)), kMinLineSine);
+    p.e = dot(da, p.m) + dot(p.d, ma);
+    (*r)(i) = p.e / p.n;
+  }
+}
+
+// Jacobian of the r_i for T <- exp(xi) T, xi = (omega, v):
+// de = omega·(m' x d_a + d' x m_a) + v·(d' x d_a);  dn = (d_a·d') c·omega / n
+void jacobian(const LinePairs& lines, const MovedPairs& P, Mat76* J) {
+  for (int i = 0; i < 7; ++i) {
+    const double* da = lines.a[i].d.data();
+    const double* ma = lines.a[i].m.data();
+    const MovedPair& p = P[i];
+    double mxd[3], dxm[3], dxd[3];
+    cross(p.m, da, mxd);
+    cross(p.d, ma, dxm);
+    cross(p.d, da, dxd);
+    const double s = dot(da, p.d) / p.n;
+    const double q = p.e / (p.n * p.n);
+    for (int k = 0; k < 3; ++k) {
+      (*J)(i, k) = (mxd[k] + dxm[k]) / p.n - q * (s * p.c[k]);
+      (*J)(i, 3 + k) = dxd[k] / p.n;
     }
   }
 }
@@ -63,7 +105,9 @@ bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solv
   RigidTransform T = init;
   Vec7& r = *r_out;
   Mat76& J = *J_out;
-  residuals(lines, T, &r, &J);
+  MovedPairs P, P_new;
+  residuals(lines, T, &r, &P);
+  jacobian(lines, P, &J);
   double cost = r.squaredNorm();
   double damping = 1e-9;
   bool converged = false;
@@ -78,7 +122,7 @@ bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solv
     if (!step.allFinite()) break;
     const RigidTransform T_new = exp_left(step, T);
     Vec7 r_new;
-    residuals(lines, T_new, &r_new, nullptr);
+    residuals(lines, T_new, &r_new, &P_new);
     const double cost_new = r_new.squaredNorm();
     const double step_size = step.cwiseAbs().maxCoeff();
     if (cost_new <= cost) {
@@ -86,7 +130,7 @@ bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solv
       T = T_new;
       cost = cost_new;
       r = r_new;
-      residuals(lines, T, &r, &J);
+      jacobian(lines, P_new, &J);
       damping = std::max(damping * 0.1, 1e-12);
       if (step_size < options.tolerance || stalled) {
         converged = true;
@@ -312,7 +356,9 @@ int solve_7l(const std::array<Segment, 7>& segments_a, const std::array<Segment,
   } else {
     st.converged = alternating_projection(segments_a, segments_b, start, options, &T, &st.iterations);
     if (!T.is_finite()) return 0;
-    residuals(lines, T, &r, &J);
+    MovedPairs P;
+    residuals(lines, T, &r, &P);
+    jacobian(lines, P, &J);
   }
   st.residual = r.cwiseAbs().maxCoeff();
   if (!st.converged || !(st.residual <= options.max_residual)) return 0;
