@@ -7,6 +7,7 @@
 #include <limits>
 #include <memory>
 #include <stdexcept>
+#include <type_traits>
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #include <immintrin.h>
@@ -325,9 +326,52 @@ constexpr std::uint32_t kMaskBytes[16] = {
     0x00000000, 0x00000001, 0x00000100, 0x00000101, 0x00010000, 0x00010001, 0x00010100, 0x00010101,
     0x01000000, 0x01000001, 0x01000100, 0x01000101, 0x01010000, 0x01010001, 0x01010100, 0x01010101};
 
+// Four consecutive points (xyz at a[k * stride], stride = S when S > 0) as x, y, z doubles (exact). Packed
+// layouts (float stride 3 and 4, double stride 3) load whole vectors and shuffle them apart.
+template <int S, typename T>
+__attribute__((target("avx2"))) inline void load_points4(const T* a, size_t stride, __m256d* x, __m256d* y,
+                                                         __m256d* z) {
+  const size_t s1 = stride, s2 = 2 * stride, s3 = 3 * stride;
+  *x = load4(a, s1, s2, s3);
+  *y = load4(a + 1, s1, s2, s3);
+  *z = load4(a + 2, s1, s2, s3);
+}
+template <>
+__attribute__((target("avx2"))) inline void load_points4<4, float>(const float* a, size_t, __m256d* x, __m256d* y,
+                                                                   __m256d* z) {
+  __m128 r0 = _mm_loadu_ps(a), r1 = _mm_loadu_ps(a + 4), r2 = _mm_loadu_ps(a + 8), r3 = _mm_loadu_ps(a + 12);
+  _MM_TRANSPOSE4_PS(r0, r1, r2, r3);
+  *x = _mm256_cvtps_pd(r0);
+  *y = _mm256_cvtps_pd(r1);
+  *z = _mm256_cvtps_pd(r2);
+}
+// v0 = x0 y0 z0 x1, v1 = y1 z1 x2 y2, v2 = z2 x3 y3 z3
+template <>
+__attribute__((target("avx2"))) inline void load_points4<3, float>(const float* a, size_t, __m256d* x, __m256d* y,
+                                                                   __m256d* z) {
+  const __m128 v0 = _mm_loadu_ps(a), v1 = _mm_loadu_ps(a + 4), v2 = _mm_loadu_ps(a + 8);
+  const __m128 bx = _mm_blend_ps(_mm_blend_ps(v0, v1, 0x4), v2, 0x2);  // x0 x3 x2 x1
+  const __m128 by = _mm_blend_ps(_mm_blend_ps(v0, v1, 0x9), v2, 0x4);  // y1 y0 y3 y2
+  const __m128 bz = _mm_blend_ps(_mm_blend_ps(v0, v1, 0x2), v2, 0x9);  // z2 z1 z0 z3
+  *x = _mm256_cvtps_pd(_mm_shuffle_ps(bx, bx, _MM_SHUFFLE(1, 2, 3, 0)));
+  *y = _mm256_cvtps_pd(_mm_shuffle_ps(by, by, _MM_SHUFFLE(2, 3, 0, 1)));
+  *z = _mm256_cvtps_pd(_mm_shuffle_ps(bz, bz, _MM_SHUFFLE(3, 0, 1, 2)));
+}
+template <>
+__attribute__((target("avx2"))) inline void load_points4<3, double>(const double* a, size_t, __m256d* x, __m256d* y,
+                                                                    __m256d* z) {
+  const __m256d v0 = _mm256_loadu_pd(a), v1 = _mm256_loadu_pd(a + 4), v2 = _mm256_loadu_pd(a + 8);
+  const __m256d bx = _mm256_blend_pd(_mm256_blend_pd(v0, v1, 0x4), v2, 0x2);  // x0 x3 x2 x1
+  const __m256d by = _mm256_blend_pd(_mm256_blend_pd(v0, v1, 0x9), v2, 0x4);  // y1 y0 y3 y2
+  const __m256d bz = _mm256_blend_pd(_mm256_blend_pd(v0, v1, 0x2), v2, 0x9);  // z2 z1 z0 z3
+  *x = _mm256_permute4x64_pd(bx, _MM_SHUFFLE(1, 2, 3, 0));
+  *y = _mm256_permute4x64_pd(by, _MM_SHUFFLE(2, 3, 0, 1));
+  *z = _mm256_permute4x64_pd(bz, _MM_SHUFFLE(3, 0, 1, 2));
+}
+
 // scan_block_scalar four points at a time (AVX2, no FMA): ok, el and the flags are the same values; the sums are
-// added in another order, which their use allows.
-template <typename T>
+// added in another order, which their use allows. S: the stride when known at compile time, else 0.
+template <int S, typename T>
 __attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, size_t stride, bool check_first,
                                                           bool prev_above, std::uint8_t* ok, double* el) {
   BlockScan out;
@@ -339,10 +383,10 @@ __attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, siz
   std::uint64_t wrap_words[kScanBlock / 64] = {};
   unsigned above_before = check_first ? (prev_above ? 1u : 0u) : 1u;
   int j = 0;
-  const size_t s1 = stride, s2 = 2 * stride, s3 = 3 * stride;
+  if (S > 0) stride = S;
   for (; j + 4 <= n; j += 4) {
-    const T* a = p + static_cast<size_t>(j) * stride;
-    const __m256d x = load4(a, s1, s2, s3), y = load4(a + 1, s1, s2, s3), z = load4(a + 2, s1, s2, s3);
+    __m256d x, y, z;
+    load_points4<S>(p + static_cast<size_t>(j) * stride, stride, &x, &y, &z);
     const __m256d ax = _mm256_and_pd(x, abs_mask), ay = _mm256_and_pd(y, abs_mask);
     const __m256d sxy = _mm256_add_pd(ax, ay);
     // finite: (x - x) + (y - y) + (z - z) is 0, NaN when any is inf or NaN; not all zero (given finite): the sum
@@ -395,7 +439,12 @@ template <typename T>
 BlockScan scan_block(const T* p, int n, size_t stride, bool check_first, bool prev_above, std::uint8_t* ok,
                      double* el) {
 #ifdef RANGE_IMAGE_AVX2
-  if (have_avx2()) return scan_block_avx2(p, n, stride, check_first, prev_above, ok, el);
+  if (have_avx2()) {
+    if (stride == 3) return scan_block_avx2<3>(p, n, stride, check_first, prev_above, ok, el);
+    if (stride == 4 && std::is_same<T, float>::value)
+      return scan_block_avx2<4>(p, n, stride, check_first, prev_above, ok, el);
+    return scan_block_avx2<0>(p, n, stride, check_first, prev_above, ok, el);
+  }
 #endif
   return scan_block_scalar(p, n, stride, check_first, prev_above, ok, el);
 }
