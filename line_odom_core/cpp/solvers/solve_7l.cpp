@@ -6,11 +6,12 @@
 // Both end with the same acceptance test: residual and rank of the 7x6 Jacobian at the solution.
 #include "solvers/solve_7l.hpp"
 
-#include <Eigen/Cholesky>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
+#include <utility>
 
 #include "solvers/solver_input.hpp"
 
@@ -92,6 +93,98 @@ void jacobian(const LinePairs& lines, const MovedPairs& P, Mat76* J) {
   }
 }
 
+inline double sum_tree(const double* x, int n) {  // Eigen's unrolled scalar redux: halves, recursively
+  switch (n) {
+    case 1: return x[0];
+    case 2: return x[0] + x[1];
+    case 3: return x[0] + (x[1] + x[2]);
+    case 4: return (x[0] + x[1]) + (x[2] + x[3]);
+    default: return (x[0] + x[1]) + (x[2] + (x[3] + x[4]));
+  }
+}
+inline double sum_packets(const double* x, int n) {  // Eigen's unrolled SSE2 redux (2 lanes)
+  switch (n) {
+    case 1: return x[0];
+    case 2: return x[0] + x[1];
+    case 3: return (x[0] + x[1]) + x[2];
+    case 4: return (x[0] + x[2]) + (x[1] + x[3]);
+    default: return ((x[0] + x[2]) + (x[1] + x[3])) + x[4];
+  }
+}
+// x = A.ldlt().solve(b) for symmetric A (lower part read): Eigen's LDLT with diagonal pivoting, its cutoffs and its
+// operation order (sequential sums in the factorization, the unrolled sums above in the two triangular solves), as
+// plain scalar code on a local array (Eigen's version goes through dynamic-size blocks and GEMV kernels).
+void ldlt_solve(const Mat6& A_in, const Vec6& b, Vec6* x_out) {
+  double a[6][6];  // a[row][col], lower part used
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j < 6; ++j) a[i][j] = A_in(i, j);
+  int tr[6];
+  double temp[6];
+#pragma GCC unroll 6
+  for (int k = 0; k < 6; ++k) {
+    int p = k;
+    double best = std::abs(a[k][k]);
+    for (int i = k + 1; i < 6; ++i)
+      if (std::abs(a[i][i]) > best) {
+        best = std::abs(a[i][i]);
+        p = i;
+      }
+    tr[k] = p;
+    if (p != k) {
+      for (int j = 0; j < k; ++j) std::swap(a[k][j], a[p][j]);
+      for (int i = p + 1; i < 6; ++i) std::swap(a[i][k], a[i][p]);
+      std::swap(a[k][k], a[p][p]);
+      for (int i = k + 1; i < p; ++i) {
+        const double t = a[i][k];
+        a[i][k] = a[p][i];
+        a[p][i] = t;
+      }
+    }
+    if (k > 0) {
+      for (int j = 0; j < k; ++j) temp[j] = a[j][j] * a[k][j];
+      double s = a[k][0] * temp[0];
+      for (int j = 1; j < k; ++j) s = s + a[k][j] * temp[j];
+      a[k][k] -= s;
+      for (int i = k + 1; i < 6; ++i) {
+        double c = 0.0;
+        for (int j = 0; j < k; ++j) c = c + a[i][j] * temp[j];
+        a[i][k] = a[i][k] + (-c);
+      }
+    }
+    const double akk = a[k][k];
+    if (k == 0 && !(std::abs(akk) > 0.0)) {  // Eigen: zero diagonal, identity transpositions, no scaling
+      for (int j = 0; j < 6; ++j) tr[j] = j;
+      break;
+    }
+    if (std::abs(akk) > 0.0)
+      for (int i = k + 1; i < 6; ++i) a[i][k] /= akk;
+  }
+  double x[6];
+  for (int i = 0; i < 6; ++i) x[i] = b(i);
+  for (int k = 0; k < 6; ++k) std::swap(x[k], x[tr[k]]);
+#pragma GCC unroll 6
+  for (int i = 1; i < 6; ++i) {  // L y = P b
+    double t[5];
+    for (int j = 0; j < i; ++j) t[j] = a[i][j] * x[j];
+    x[i] -= sum_tree(t, i);
+  }
+  for (int i = 0; i < 6; ++i) {
+    if (std::abs(a[i][i]) > std::numeric_limits<double>::min())
+      x[i] /= a[i][i];
+    else
+      x[i] = 0.0;
+  }
+#pragma GCC unroll 6
+  for (int i = 4; i >= 0; --i) {  // L^T z = D^-1 y
+    double t[5];
+    const int n = 5 - i;
+    for (int j = 0; j < n; ++j) t[j] = a[i + 1 + j][i] * x[i + 1 + j];
+    x[i] -= sum_packets(t, n);
+  }
+  for (int k = 5; k >= 0; --k) std::swap(x[k], x[tr[k]]);
+  for (int i = 0; i < 6; ++i) (*x_out)(i) = x[i];
+}
+
 RigidTransform exp_left(const Vec6& xi, const RigidTransform& T) {
   const Vec3 omega = xi.head<3>();
   const double angle = omega.norm();
@@ -118,7 +211,9 @@ bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solv
     const Vec6 g = J.transpose() * r;
     Mat6 A = H;
     A.diagonal() += damping * (H.diagonal().array() + 1e-12).matrix();
-    const Vec6 step = -A.ldlt().solve(g);
+    Vec6 step;
+    ldlt_solve(A, g, &step);
+    step = -step;
     if (!step.allFinite()) break;
     const RigidTransform T_new = exp_left(step, T);
     Vec7 r_new;
