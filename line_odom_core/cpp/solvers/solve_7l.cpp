@@ -434,9 +434,14 @@ int solve_7l(const std::array<Segment, 7>& segments_a, const std::array<Segment,
     if (!solver_input::is_finite(sa.a) || !solver_input::is_finite(sa.b) || !solver_input::is_finite(sb.a) ||
         !solver_input::is_finite(sb.b))
       return 0;
-    if (!(sa.length() > kMinSegmentLength) || !(sb.length() > kMinSegmentLength)) return 0;
-    lines.a[i] = sa.line();
-    lines.b[i] = sb.line();
+    // Segment::length() and Segment::line() (PluckerLine::through) with the norm computed once: the same values
+    const Vec3 va = sa.b - sa.a, vb = sb.b - sb.a;
+    const double length_a = va.norm(), length_b = vb.norm();
+    if (!(length_a > kMinSegmentLength) || !(length_b > kMinSegmentLength)) return 0;
+    lines.a[i].d = va / length_a;
+    lines.a[i].m = sa.a.cross(lines.a[i].d);
+    lines.b[i].d = vb / length_b;
+    lines.b[i].m = sb.a.cross(lines.b[i].d);
   }
   RigidTransform T;
   // start from a proper rotation even if the guess is slightly off SO(3)
