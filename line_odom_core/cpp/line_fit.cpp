@@ -201,10 +201,12 @@ class ScanLineFitter {
   static constexpr int kEndChecks = 4;
 
  public:
-  explicit ScanLineFitter(const LineFitConfig& cfg)
-      : cfg_(cfg),
-        sin_min_incidence_(std::sin(cfg.min_incidence_deg * kDeg)),
-        sin2_min_incidence_(sin_min_incidence_ * sin_min_incidence_) {}
+  // (re)configures the fitter; its work buffers keep their largest size
+  void configure(const LineFitConfig& cfg) {
+    cfg_ = cfg;
+    sin_min_incidence_ = std::sin(cfg.min_incidence_deg * kDeg);
+    sin2_min_incidence_ = sin_min_incidence_ * sin_min_incidence_;
+  }
 
   // Fits the lines of the buffered scan line and appends them to `out`, labelling their cells.
   void fit(const ScanBuffer& buf, int min_points, int scan_index, std::vector<LineFeature>* out,
@@ -531,9 +533,9 @@ class ScanLineFitter {
     out->push_back(f);
   }
 
-  const LineFitConfig& cfg_;
-  const double sin_min_incidence_;
-  const double sin2_min_incidence_;
+  LineFitConfig cfg_;
+  double sin_min_incidence_ = 0.0;
+  double sin2_min_incidence_ = 0.0;
   std::vector<std::pair<int, int>> stack_, pieces_;
   std::vector<CandidateLine> candidates_;
   std::vector<int> skipped_;
@@ -546,20 +548,22 @@ class ScanLineFitter {
 
 // Per-cell split thresholds, computed once for both passes (holes: 1).
 struct CellThresholds {
-  std::unique_ptr<double[]> tau, inv_tau2;
+  std::vector<double> range;  // scratch
+  std::vector<double> tau;    // per cell: tau, 1 / tau^2 interleaved (one memory stream for the column pass)
 };
 
 // Branch-free loops over the cells (vectorized; the same IEEE operations as Vec3::norm and threshold_scale).
-LINE_FIT_CLONES CellThresholds cell_thresholds(const RangeImage& img, const LineFitConfig& cfg) {
+LINE_FIT_CLONES void cell_thresholds(const RangeImage& img, const LineFitConfig& cfg, CellThresholds& t) {
   static_assert(sizeof(Vec3) == 3 * sizeof(double), "Vec3 arrays are read as packed x, y, z");
-  CellThresholds t;
   const size_t n = img.points.size();
-  t.tau.reset(new double[n]);
-  t.inv_tau2.reset(new double[n]);
+  if (t.range.size() < n) {
+    t.range.resize(n);
+    t.tau.resize(2 * n);
+  }
   const double* __restrict xyz = img.points.empty() ? nullptr : img.points[0].data();
   const std::uint8_t* __restrict valid = img.valid.data();
-  double* __restrict tau_out = t.tau.get();
-  double* __restrict inv_out = t.inv_tau2.get();
+  double* __restrict tau_out = t.range.data();
+  double* __restrict pair_out = t.tau.data();
   for (size_t i = 0; i < n; ++i) {
     const double x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
     tau_out[i] = x * x + y * y + z * z;
@@ -580,10 +584,9 @@ LINE_FIT_CLONES CellThresholds cell_thresholds(const RangeImage& img, const Line
     const std::uint64_t bits = (bits_scaled & keep) | (bits_one & ~keep);
     double tau;
     std::memcpy(&tau, &bits, sizeof tau);
-    tau_out[i] = tau;
-    inv_out[i] = 1.0 / (tau * tau);
+    pair_out[2 * i] = tau;
+    pair_out[2 * i + 1] = 1.0 / (tau * tau);
   }
-  return t;
 }
 
 void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizontal, int index, ScanBuffer* buf) {
@@ -604,8 +607,7 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   // The valid points, compacted.
   const std::uint8_t* valid = img.valid.data();
   const Vec3* points = img.points.data();
-  const double* cell_tau = th.tau.get();
-  const double* cell_inv_tau2 = th.inv_tau2.get();
+  const double* cell_tau = th.tau.data();
   int* out_cell = buf->cell.data();
   int* out_pos = buf->pos.data();
   Vec3* out_p = buf->p.data();
@@ -624,8 +626,8 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
     out_x[m] = x;
     out_y[m] = y;
     out_z[m] = z;
-    out_tau[m] = cell_tau[cell];
-    out_inv_tau2[m] = cell_inv_tau2[cell];
+    out_tau[m] = cell_tau[2 * cell];
+    out_inv_tau2[m] = cell_tau[2 * cell + 1];
     ++m;
   }
   buf->count = m;
@@ -797,9 +799,13 @@ ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
   ScanLines out;
   out.h_label.assign(cells, -1);
   out.v_label.assign(cells, -1);
-  ScanLineFitter fitter(config);
-  ScanBuffer buf;
-  const CellThresholds thresholds = cell_thresholds(image, config);
+  // Work buffers kept per thread at their largest size: a full frame needs a few MB, which the allocator would
+  // otherwise map and the kernel fault in and zero again on every call.
+  thread_local CellThresholds thresholds;
+  thread_local ScanBuffer buf;
+  thread_local ScanLineFitter fitter;
+  fitter.configure(config);
+  cell_thresholds(image, config, thresholds);
   fit_pass(image, thresholds, true, config.min_points_h, fitter, buf, &out.h_lines, &out.h_label);
   fit_pass(image, thresholds, false, config.min_points_v, fitter, buf, &out.v_lines, &out.v_label);
   return out;
