@@ -206,6 +206,9 @@ class ScanLineFitter {
     cfg_ = cfg;
     sin_min_incidence_ = std::sin(cfg.min_incidence_deg * kDeg);
     sin2_min_incidence_ = sin_min_incidence_ * sin_min_incidence_;
+    const double floor_per_tau = 0.5 * cfg.max_rms / cfg.split_distance;
+    floor_bound_ = floor_per_tau * floor_per_tau * (1.0 - kMargin);
+    trim2_ = cfg.trim_sigmas * cfg.trim_sigmas;
   }
 
   // Fits the lines of the buffered scan line and appends them to `out`, labelling their cells.
@@ -427,6 +430,26 @@ class ScanLineFitter {
     return k;
   }
 
+  // True when the short-line test in acceptable() (the point is off when beyond the split threshold of the line f
+  // through the other n points, or beyond both trim_sigmas x its unbiased rms and the floor) is certain to keep
+  // point k, decided on the direction before its normalization: with u = C^3 seed, |u|^2 r^2 = |(p - c) x u|^2 and
+  // |u|^2 rms^2 = trace |u|^2 - u.C u. Margins: 1e-9 relative (the rounding of either form is a few ulps) and
+  // 1e-10 trace |u|^2 absolute on the rms (its cancellation); the floor is floor_per_tau_ x the split threshold up
+  // to a few ulps. Undecided cases take the finished fit, so the decisions are the same.
+  bool clearly_kept(const ScanBuffer& buf, int k, const LinePrefit& pre, int n) const {
+    const double d2 = distance2(buf.p[k], pre.centroid, pre.u);
+    const double e = d2 * buf.inv_tau2[k];
+    if (!(e < pre.norm2 * (1.0 - kMargin))) return false;        // maybe beyond the split threshold
+    if (e < pre.norm2 * floor_bound_) return true;                // within the floor
+    const double ux = pre.u.x(), uy = pre.u.y(), uz = pre.u.z();
+    const double cx = pre.xx * ux + pre.xy * uy + pre.xz * uz;
+    const double cy = pre.xy * ux + pre.yy * uy + pre.yz * uz;
+    const double cz = pre.xz * ux + pre.yz * uy + pre.zz * uz;
+    const double trace = pre.xx + pre.yy + pre.zz;
+    const double spread = trace * pre.norm2 * (1.0 - 1e-10) - (ux * cx + uy * cy + uz * cz);  // <= |u|^2 rms^2
+    return spread > 0.0 && d2 * (n - 2.0) < trim2_ * n * spread * (1.0 - kMargin);
+  }
+
   // Trims end points beyond the threshold, then applies the support / rms / length tests.
   bool acceptable(const ScanBuffer& buf, CandidateLine& c, int min_points) const {
     if (c.moments.count < min_points) return false;
@@ -455,7 +478,9 @@ class ScanLineFitter {
         if (short_line && c.moments.count >= 5) {  // judged by the line through the other points
           Moments rest = c.moments;
           remove_point(&rest, buf.p[k]);
-          const LineLeastSquares f = fit_line(rest, c.fit.direction);
+          const LinePrefit pre = prefit_line(rest, c.fit.direction);
+          if (pre.usable() && clearly_kept(buf, k, pre, rest.count)) return false;
+          const LineLeastSquares f = finish_line(pre, rest, c.fit.direction);
           const double rms = f.rms * std::sqrt(rest.count / (rest.count - 2.0));
           return excess2(f, buf, k) > 1.0 || beyond(residual(f, buf.p[k]), cfg_.trim_sigmas * rms, k);
         }
@@ -536,6 +561,8 @@ class ScanLineFitter {
   LineFitConfig cfg_;
   double sin_min_incidence_ = 0.0;
   double sin2_min_incidence_ = 0.0;
+  double floor_bound_ = 0.0;  // (floor / split threshold)^2, less the margin
+  double trim2_ = 0.0;        // trim_sigmas^2
   std::vector<std::pair<int, int>> stack_, pieces_;
   std::vector<CandidateLine> candidates_;
   std::vector<int> skipped_;
