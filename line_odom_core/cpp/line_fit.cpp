@@ -301,8 +301,12 @@ class ScanLineFitter {
       }
       if (merged) continue;
       // (a line with too few points is rejected by acceptable() before its fit is read)
-      if (!fitted_ && cur.moments.count >= min_points)
-        cur.fit = fit_line(cur.moments, chord_direction(buf, cur.first, cur.last));
+      if (cur.moments.count >= min_points) {
+        if (!fitted_)
+          cur.fit = fit_line(cur.moments, chord_direction(buf, cur.first, cur.last));
+        else
+          settle_fit(&cur);
+      }
       candidates_.push_back(cur);
       if (++i >= np) break;
       start_line(buf, &cur, pieces_[i].first, pieces_[i].second);
@@ -334,6 +338,14 @@ class ScanLineFitter {
     line->moments = buf.stretch(a, b);
     line->accepted = false;
     fitted_ = false;
+    pending_ = false;
+  }
+
+  // Finishes the fit of the last successful merge when it was left pending (see try_merge).
+  void settle_fit(CandidateLine* line) {
+    if (!pending_) return;
+    line->fit = finish_line(pending_pre_, line->moments, pending_seed_);
+    pending_ = false;
   }
 
   // Index in (a, b) of the point farthest from the chord a-b relative to its threshold, -1 if all are within.
@@ -361,6 +373,8 @@ class ScanLineFitter {
       if (!fitted_) {
         line->fit = fit_line(line->moments, chord_direction(buf, line->first, line->last));
         fitted_ = true;
+      } else {
+        settle_fit(line);
       }
       for (int k = a; k <= b; ++k)
         if (excess2(line->fit, buf, k) > 4.0) return false;
@@ -400,7 +414,6 @@ class ScanLineFitter {
         if (outside(k)) return false;
         ++checked;
       }
-    if (!finished) f = finish_line(pre, m, seed);
     for (int k = line->last + 1; k < a; ++k) {
       skipped_.push_back(k);
       is_skipped_[k] = 1;
@@ -408,7 +421,16 @@ class ScanLineFitter {
     line->skipped_end = static_cast<int>(skipped_.size());
     line->last = b;
     line->moments = m;
-    line->fit = f;
+    // The fit is finished when first read (the next merge's cheap rejection or the end of the line): a line merged
+    // again before that never pays for it.
+    if (finished) {
+      line->fit = f;
+      pending_ = false;
+    } else {
+      pending_pre_ = pre;
+      pending_seed_ = seed;
+      pending_ = true;
+    }
     fitted_ = true;
     return true;
   }
@@ -569,7 +591,10 @@ class ScanLineFitter {
   std::vector<std::uint8_t> is_skipped_;
   std::vector<double> ratio_;
   std::vector<std::int32_t> break_code_;
-  bool fitted_ = false;
+  bool fitted_ = false;   // the current line's fit is known (finished, or pending below)
+  bool pending_ = false;  // its fit is the unfinished pending_pre_ from seed pending_seed_
+  LinePrefit pending_pre_;
+  Vec3 pending_seed_ = Vec3::UnitX();
   int count_ = 0;  // points of the current scan line
 };
 
