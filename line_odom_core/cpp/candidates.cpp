@@ -176,7 +176,7 @@ struct IndexedLines {
       r.box_lo = l.segment.a.cwiseMin(l.segment.b);
       r.box_hi = l.segment.a.cwiseMax(l.segment.b);
       r.d = l.line.d;
-      carriers[i] = carrier(l.segment);
+      carriers[i] = l.segment.line();
       r.normal = l.normal;
       r.normal_norm = l.normal.norm();
       r.normal_known = l.normal.squaredNorm() > 0.25;
@@ -186,11 +186,6 @@ struct IndexedLines {
         box_columns[3 + k][i] = round_up(r.box_hi[k]);
       }
     }
-  }
-
-  static PluckerLine carrier(const Segment& s) {
-    const Vec3 d = (s.b - s.a).normalized();
-    return {d, s.a.cross(d)};
   }
 
   static float round_down(double v) {
@@ -320,7 +315,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const double nb_norm = nb.norm();
     const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
     const double sb_magnitude = std::max(sb_lo.cwiseAbs().maxCoeff(), sb_hi.cwiseAbs().maxCoeff());
-    const PluckerLine sb_carrier = IndexedLines::carrier(sb);
+    const PluckerLine sb_carrier = sb.line();
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
     auto gather = [&](double distance, const SegmentGrid* grid) {

@@ -155,9 +155,4 @@ double score_motion(const LinePairTable& pairs, const RigidTransform& T_ab, doub
   return score;
 }
 
-double score_motion(const Correspondences& candidates, const RigidTransform& T_ab, double threshold, double min_sine,
-                    int* inliers) {
-  return score_motion(LinePairTable(candidates), T_ab, threshold, min_sine, inliers);
-}
-
 }  // namespace line_odom

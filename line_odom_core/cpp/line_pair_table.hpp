@@ -52,7 +52,5 @@ class LinePairTable {
 // parallel than min_sine (sine of their angle) do not count.
 double score_motion(const LinePairTable& pairs, const RigidTransform& T_ab, double threshold, double min_sine = 0.05,
                     int* inliers = nullptr);
-double score_motion(const Correspondences& candidates, const RigidTransform& T_ab, double threshold,
-                    double min_sine = 0.05, int* inliers = nullptr);
 
 }  // namespace line_odom

@@ -155,6 +155,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   CandidateOptions copt = config_.candidates;
   if (!limit_pairs) copt.max_pairs_per_line = 0;
   Correspondences corr;
+  LinePairTable table;  // corr's line pairs, for the pass and the checks after the last one
   CandidateStats cstats;
   std::string failure;
   RefineOptions ropt;
@@ -178,14 +179,14 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     st->plane_candidates = cstats.plane_pairs;
 
     stage = Stopwatch();
-    const LinePairTable pairs(corr);
+    table = LinePairTable(corr);
     MotionOptions mopt = config_.ransac;
     mopt.seed = mix_seed(config_.seed, static_cast<std::uint64_t>(frames_), static_cast<std::uint64_t>(pass));
     // The guess itself, refined on this pass's candidates, competes with the RANSAC samples: it is scored first
     // and whichever has the larger weighted inlier count on the same candidates is kept (paper §6.3).
     // An ill-conditioned refined guess still competes: a sample must out-support it to win, or the pass fails.
     RefineResult refined;
-    const bool refine_converged = refine_motion(corr, pairs, best, ropt, &refined) && sane(refined.T);
+    const bool refine_converged = refine_motion(corr, table, best, ropt, &refined) && sane(refined.T);
     const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
     RigidTransform estimate;
     MotionStats ms;
@@ -197,8 +198,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
     int sample_pairs = 0, guess_pairs = 0;
-    double score_ransac = ok ? score_motion(pairs, estimate, thr, ropt.min_line_sine, &sample_pairs) : -1.0;
-    const double score_guess = refine_converged ? score_motion(pairs, refined.T, thr, ropt.min_line_sine, &guess_pairs)
+    double score_ransac = ok ? score_motion(table, estimate, thr, ropt.min_line_sine, &sample_pairs) : -1.0;
+    const double score_guess = refine_converged ? score_motion(table, refined.T, thr, ropt.min_line_sine, &guess_pairs)
                                                 : -1.0;
     if (ok && refine_converged && guessed && ms.best_solver >= 0 &&
         sample_pairs < reg.min_sample_pair_share * guess_pairs) {
@@ -207,7 +208,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
       ok = false;
       score_ransac = -1.0;
     }
-    const double score_prior = have ? score_motion(pairs, best, thr, ropt.min_line_sine) : -1.0;
+    const double score_prior = have ? score_motion(table, best, thr, ropt.min_line_sine) : -1.0;
     const double score_refined = refined_ok ? score_guess : -1.0;
     st->ms.ransac += stage.ms();
 
@@ -241,11 +242,11 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   if (have && !best_stats.degenerate) {
     const double thr = config_.ransac.inlier_threshold;
     int inliers = 0;
-    score_motion(corr, best, thr, ropt.min_line_sine, &inliers);
+    score_motion(table, best, thr, ropt.min_line_sine, &inliers);
     const double pairs = static_cast<double>(corr.lines_a.size());
     double pair_share = 0.0;
     const double weight_share = reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0
-                                    ? axis_support(corr, best, thr, ropt.min_line_sine, &pair_share)
+                                    ? axis_support(table, best, thr, ropt.min_line_sine, &pair_share)
                                     : 0.0;
     // Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few chance
     // pairs within the threshold, whatever motion they are fitted to. The share must be shown, not just reached:

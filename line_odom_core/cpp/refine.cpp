@@ -157,10 +157,9 @@ void copy_refinement_stats(const RefineResult& refined, MotionStats* stats) {
   stats->degenerate = refined.degenerate;
 }
 
-double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine,
+double axis_support(const LinePairTable& pairs, const RigidTransform& T, double threshold, double min_sine,
                     double* pair_share) {
   if (pair_share) *pair_share = 0.0;
-  const LinePairTable pairs(data);
   const int n = pairs.size();
   std::vector<std::uint8_t> meets(n);
   pairs.inlier_mask(T, threshold, min_sine, 0, n, meets.data());
@@ -171,7 +170,7 @@ double axis_support(const Correspondences& data, const RigidTransform& T, double
     if (w > 0.0 && meets[j]) {
       inliers.push_back(j);
       total += w;
-      r2 += data.lines_a[j].closest_point_to_origin().squaredNorm();
+      r2 += pairs.a_d(j).cross(pairs.a_m(j)).squaredNorm();  // PluckerLine::closest_point_to_origin
     }
   }
   if (inliers.empty() || total <= 0.0) return 0.0;
@@ -198,11 +197,6 @@ double axis_support(const Correspondences& data, const RigidTransform& T, double
   }
   if (pair_share) *pair_share = worst_pairs;
   return worst;
-}
-
-bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
-                   RefineResult* result) {
-  return refine_motion(data, LinePairTable(data), T0, options, result);
 }
 
 bool refine_motion(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,

@@ -53,14 +53,12 @@ void copy_refinement_stats(const RefineResult& refined, MotionStats* stats);
 // the coincidental pairs make J^T W J look. `pair_share` (optional) gets the same for the share of inlier
 // pairs, each counted once: the cluster weights can give a handful of pairs without a normal cluster a third of
 // the weight, so a few coincidental pairs (two planes' seam) would otherwise pass for an observed axis.
-double axis_support(const Correspondences& data, const RigidTransform& T, double threshold, double min_sine,
+double axis_support(const LinePairTable& pairs, const RigidTransform& T, double threshold, double min_sine,
                     double* pair_share = nullptr);
 
-// Gauss-Newton / IRLS from T0 over the pairs that are inliers at each iterate. Returns false (result->T = T0)
-// when fewer residuals than unknowns remain or a step is not finite; never writes NaN.
-bool refine_motion(const Correspondences& data, const RigidTransform& T0, const RefineOptions& options,
-                   RefineResult* result);
-// The same with the line pairs of `data` already tabled (the planes still come from `data`).
+// Gauss-Newton / IRLS from T0 over the pairs that are inliers at each iterate: the line pairs of `data` as
+// tabled in `pairs`, its planes from `data`. Returns false (result->T = T0) when fewer residuals than unknowns
+// remain or a step is not finite; never writes NaN.
 bool refine_motion(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,
                    const RefineOptions& options, RefineResult* result);
 
