@@ -91,6 +91,9 @@ class FrameResult:
                               held (registration failed or was degenerate)
       points: int             valid range-image cells after downsampling
       h_lines, v_lines: int   lines fitted along rows / columns
+      line_step: int          the lines of every line_step-th row and column were registered
+                              (registration.max_lines; 1 = all)
+      registered_lines: int   of those lines, how many entered the registration
       planes: int             planes fitted
       candidates: int         candidate line-intersection pairs (last pass)
       plane_candidates: int   candidate plane pairs (last pass)

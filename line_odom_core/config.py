@@ -123,6 +123,10 @@ _ENTRIES: list[ConfigEntry] = [
                 "estimate so far (paper §6.3: 3)", 1, 10),
     ConfigEntry("registration.pass_distance_scale", float, 1.0, "candidate distance multiplier from one pass to "
                 "the next (1 = the same threshold every pass)", 0.01, 1.0),
+    ConfigEntry("registration.max_lines", int, 3000, "lines registered per scan: when more were fitted, only those "
+                "of every s-th row and column enter the registration, s the smallest step within this budget (all "
+                "rows and columns are still fitted and give the normals and planes; neighbouring rows on one surface "
+                "give nearly the same intersections). 0 = all", 0, 10000000),
     ConfigEntry("registration.min_inliers", int, 12, "fewer inlier pairs than this: registration failed, the "
                 "motion model's prediction is held", 0, 1000000),
     ConfigEntry("registration.max_translation", float, 5.0, "an estimate further than this (m) from the "

@@ -843,6 +843,8 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["points"] = s.points;
   d["h_lines"] = s.h_lines;
   d["v_lines"] = s.v_lines;
+  d["line_step"] = s.line_step;
+  d["registered_lines"] = s.registered_lines;
   d["planes"] = s.planes;
   d["candidates"] = s.candidates;
   d["plane_candidates"] = s.plane_candidates;

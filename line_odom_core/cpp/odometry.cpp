@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "line_pair_table.hpp"
+#include "line_selection.hpp"
 #include "refine.hpp"
 
 namespace line_odom {
@@ -62,6 +63,7 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   config_.features.validate();
   if (config_.downsample < 1) throw std::invalid_argument("downsample: expected >= 1");
   if (config_.registration.passes < 1) throw std::invalid_argument("registration.passes: expected >= 1");
+  if (config_.registration.max_lines < 0) throw std::invalid_argument("registration.max_lines: expected >= 0");
 }
 
 void Odometry::reset(const RigidTransform& pose) {
@@ -313,6 +315,9 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   st.h_lines = static_cast<int>(features.h_lines.size());
   st.v_lines = static_cast<int>(features.v_lines.size());
   st.planes = static_cast<int>(features.planes.size());
+  st.line_step = registration_line_step(features, config_.registration.max_lines);
+  keep_lines_every(st.line_step, &features);
+  st.registered_lines = static_cast<int>(features.h_lines.size() + features.v_lines.size());
 
   ScanFeatures coarse_features;
   const int coarse_step = config_.registration.coarse_downsample;
@@ -456,6 +461,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("ransac.degeneracy_threshold", c.ransac.degeneracy_threshold);
   visit("registration.passes", c.registration.passes);
   visit("registration.pass_distance_scale", c.registration.pass_distance_scale);
+  visit("registration.max_lines", c.registration.max_lines);
   visit("registration.min_inliers", c.registration.min_inliers);
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);

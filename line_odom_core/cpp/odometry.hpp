@@ -37,6 +37,8 @@ struct RegistrationOptions {
   double covariance_scale = 1.0;        // multiplies the refinement's covariance (it ignores candidate errors)
   double motion_prior_translation_sigma = 0.0;  // constant-velocity prior per frame (m); 0: no fusion
   double motion_prior_rotation_sigma_deg = 0.5;
+  int max_lines = 3000;                 // lines registered per scan: past this, those of every s-th row and column
+                                        // (line_selection.hpp); 0: all
   int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / = downsample: off)
   double fallback_translation_sigma = 0.5;    // covariance reported when the prediction is held
   double fallback_rotation_sigma_deg = 5.0;
@@ -75,6 +77,8 @@ struct FrameStats {
   std::string solver = "none";  // "7L", "3L1P", "1L2P"; "none" on the first frame; "prediction" when held
   int points = 0;               // valid points after downsampling
   int h_lines = 0, v_lines = 0, planes = 0;
+  int line_step = 1;            // lines of every line_step-th row and column registered (registration.max_lines)
+  int registered_lines = 0;     // of h_lines + v_lines
   int candidates = 0, plane_candidates = 0;  // of the last pass
   int inliers = 0, plane_inliers = 0;
   double inlier_weight = 0.0;
