@@ -127,6 +127,10 @@ _ENTRIES: list[ConfigEntry] = [
                 "of every s-th row and column enter the registration, s the smallest step within this budget (all "
                 "rows and columns are still fitted and give the normals and planes; neighbouring rows on one surface "
                 "give nearly the same intersections). 0 = all", 0, 10000000),
+    ConfigEntry("registration.first_motion_pairs_per_line", int, 0, "while there is no motion guess (the first "
+                "motion after start or reset, searched from standing still), keep the k closest partners of each line "
+                "within candidates.max_distance (0 = all of them, as in the paper; KITTI: 8, at half the cost)", 0,
+                100000),
     ConfigEntry("registration.min_inliers", int, 12, "fewer inlier pairs than this: registration failed, the "
                 "motion model's prediction is held", 0, 1000000),
     ConfigEntry("registration.max_translation", float, 5.0, "an estimate further than this (m) from the "

@@ -165,3 +165,17 @@ def test_registration_releases_the_gil():
         time.sleep(0.001)
     worker.join()
     assert ticks > 20  # the main thread kept running while C++ worked (a full-resolution frame takes > 0.1 s)
+
+
+def test_first_motion_keeps_the_closest_partners():
+    # One pass, so the frame's candidate count is that of the first-motion search (no guess: identity). With
+    # registration.first_motion_pairs_per_line = k each line of the current scan keeps at most k partners; with 0,
+    # every partner within 2 m (16 per line on these frames).
+    def first_registration(k):
+        _, results = run("07", 6, frames=2, **{"registration.passes": 1, "registration.first_motion_pairs_per_line": k})
+        return results[1].stats
+
+    assert line_odom_core.load_config("kitti_hdl64")["registration.first_motion_pairs_per_line"] == 8
+    limited, unlimited = first_registration(8), first_registration(0)
+    assert limited["candidates"] <= 8 * limited["registered_lines"] < unlimited["candidates"]
+    assert limited["registered"] and not limited["degenerate"]

@@ -64,6 +64,8 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   if (config_.downsample < 1) throw std::invalid_argument("downsample: expected >= 1");
   if (config_.registration.passes < 1) throw std::invalid_argument("registration.passes: expected >= 1");
   if (config_.registration.max_lines < 0) throw std::invalid_argument("registration.max_lines: expected >= 0");
+  if (config_.registration.first_motion_pairs_per_line < 0)
+    throw std::invalid_argument("registration.first_motion_pairs_per_line: expected >= 0");
 }
 
 void Odometry::reset(const RigidTransform& pose) {
@@ -155,7 +157,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   MotionStats best_stats;
   bool have = false;
   CandidateOptions copt = config_.candidates;
-  if (!limit_pairs) copt.max_pairs_per_line = 0;
+  if (!limit_pairs) copt.max_pairs_per_line = reg.first_motion_pairs_per_line;
   Correspondences corr;
   LinePairTable table;  // corr's line pairs, for the pass and the checks after the last one
   CandidateStats cstats;
@@ -462,6 +464,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.passes", c.registration.passes);
   visit("registration.pass_distance_scale", c.registration.pass_distance_scale);
   visit("registration.max_lines", c.registration.max_lines);
+  visit("registration.first_motion_pairs_per_line", c.registration.first_motion_pairs_per_line);
   visit("registration.min_inliers", c.registration.min_inliers);
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);

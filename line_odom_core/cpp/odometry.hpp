@@ -39,6 +39,8 @@ struct RegistrationOptions {
   double motion_prior_rotation_sigma_deg = 0.5;
   int max_lines = 3000;                 // lines registered per scan: past this, those of every s-th row and column
                                         // (line_selection.hpp); 0: all
+  int first_motion_pairs_per_line = 0;  // no motion guess yet: the k closest partners of each line (0: all within
+                                        // candidates.max_distance, paper §6.3)
   int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / = downsample: off)
   double fallback_translation_sigma = 0.5;    // covariance reported when the prediction is held
   double fallback_rotation_sigma_deg = 5.0;
