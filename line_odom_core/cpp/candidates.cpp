@@ -5,8 +5,8 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <deque>
 #include <limits>
-#include <optional>
 #include <utility>
 
 namespace line_odom {
@@ -23,11 +23,10 @@ double deg2rad(double deg) { return deg * kPi / 180.0; }
 // reads the cells of its own samples. Cells are a CSR array: a lookup is an index, not a hash probe.
 class SegmentGrid {
  public:
-  SegmentGrid(const std::vector<const LineFeature*>& lines, double max_distance, double max_cells) {
-    Vec3 lo, hi;
-    if (!bounds(lines, &lo, &hi)) return;
+  // Cells of size `cell` (cell_for) over the bounds lo..hi of the segments (bounds).
+  SegmentGrid(const std::vector<const LineFeature*>& lines, const Vec3& lo, const Vec3& hi, double cell) {
     const Vec3 extent = hi - lo;
-    cell_ = cell_for(extent, max_distance, max_cells);
+    cell_ = cell;
     step_ = cell_ / 3.0;
     origin_ = lo - Vec3::Constant(2.0 * cell_);  // two cells of margin hold the neighbourhoods of the samples
     for (int k = 0; k < 3; ++k) size_[k] = static_cast<int>(extent[k] / cell_) + 5;
@@ -62,12 +61,8 @@ class SegmentGrid {
     for (const auto& e : entries) ids_[fill[e.first]++] = e.second;
   }
 
+  double cell() const { return cell_; }
   double reach() const { return cell_ / 1.5; }  // segments closer than this have samples in neighbouring cells
-  // The reach of a grid that would be built for these arguments (0 if none would be).
-  static double reach_for(const std::vector<const LineFeature*>& lines, double max_distance, double max_cells) {
-    Vec3 lo, hi;
-    return bounds(lines, &lo, &hi) ? cell_for(hi - lo, max_distance, max_cells) / 1.5 : 0.0;
-  }
   // Whether a segment of finite length was left out as too long for the cells (see for_each_sample_cell).
   bool left_out_any() const { return left_out_any_; }
 
@@ -75,13 +70,11 @@ class SegmentGrid {
   // (an id may be visited more than once).
   template <typename Visit>
   void for_each_near(const Segment& query, Visit&& visit) const {
-    if (begin_.empty()) return;
     for_each_sample_cell(query, [&](int cell) {
       for (int e = begin_[cell]; e < begin_[cell + 1]; ++e) visit(ids_[e]);
     });
   }
 
- private:
   static bool bounds(const std::vector<const LineFeature*>& lines, Vec3* lo, Vec3* hi) {
     *lo = Vec3::Constant(std::numeric_limits<double>::infinity());
     *hi = -*lo;
@@ -99,6 +92,7 @@ class SegmentGrid {
     return cell;
   }
 
+ private:
   // Calls f(cell) for each cell of the grid holding a sample of s (consecutive repeats skipped: a straight
   // segment crosses a cell in one run of samples; samples outside the grid are near no bucketed segment).
   template <typename F>
@@ -139,6 +133,13 @@ constexpr double kMaxCells = 1 << 21;  // grid size bound: coarser cells beyond 
 constexpr double kNearFraction = 0.25;
 constexpr double kNearMaxCells = 1 << 17;
 
+// A partner that passed the filters, with the squared gap between the bounding boxes (a lower bound of the
+// squared segment distance).
+struct Nearby {
+  int ia;
+  double box_gap2;
+};
+
 struct LinePair {
   const LineFeature* a;
   const LineFeature* b;
@@ -155,18 +156,28 @@ struct LineRecord {
   bool normal_known;
 };
 
-// The usable lines of one kind (H or V) of frame a with their records and grid.
-struct IndexedLines {
+}  // namespace
+
+// The usable lines of one kind (H or V) of frame a with their records, grids and the work buffers of a match.
+struct CandidateIndex::Lines {
   std::vector<const LineFeature*> lines;
   std::vector<LineRecord> records;
   std::vector<PluckerLine> carriers;  // the lines through the segments (from their end points)
   double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
   // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
   std::array<std::vector<float>, 6> box_columns;
-  // Grids for the pass distance and for the near search, built on first use: small frames are matched without.
-  std::optional<SegmentGrid> grid, near_grid;
+  bool have_bounds = false;  // bounds of the segments, for the grids
+  Vec3 lo, hi;
+  // Grids built on first use (small frames are matched without), kept for any later pass that needs their cells.
+  std::deque<SegmentGrid> grids;
+  // Work buffers of match_lines, sized for the lines.
+  std::vector<int> last_seen;
+  int stamp = -1;
+  std::vector<std::uint8_t> overlap;
+  std::vector<Nearby> nearby;
+  std::vector<std::pair<double, int>> best;
 
-  explicit IndexedLines(const std::vector<LineFeature>& all) : lines(usable(all)) {
+  explicit Lines(const std::vector<LineFeature>& all) : lines(usable(all)) {
     records.resize(lines.size());
     carriers.resize(lines.size());
     for (auto& c : box_columns) c.resize(lines.size());
@@ -186,6 +197,23 @@ struct IndexedLines {
         box_columns[3 + k][i] = round_up(r.box_hi[k]);
       }
     }
+    have_bounds = SegmentGrid::bounds(lines, &lo, &hi);
+    last_seen.assign(lines.size(), -1);
+    overlap.resize(lines.size() + 8);  // padded to whole 8-byte words
+    nearby.resize(lines.size());       // a line of frame a at most once per search
+  }
+
+  // The reach of the grid grid(max_distance, max_cells) would return (0 without one).
+  double reach_for(double max_distance, double max_cells) const {
+    return have_bounds ? SegmentGrid::cell_for(hi - lo, max_distance, max_cells) / 1.5 : 0.0;
+  }
+  // A grid for segments within max_distance with at most about max_cells cells: the one built before with the same
+  // cells, else a new one. Requires have_bounds.
+  const SegmentGrid& grid(double max_distance, double max_cells) {
+    const double cell = SegmentGrid::cell_for(hi - lo, max_distance, max_cells);
+    for (const SegmentGrid& g : grids)
+      if (g.cell() == cell) return g;
+    return grids.emplace_back(lines, lo, hi, cell);
   }
 
   static float round_down(double v) {
@@ -206,6 +234,10 @@ struct IndexedLines {
   }
 };
 
+namespace {
+
+using IndexedLines = CandidateIndex::Lines;
+
 // overlap[i] = 1 where box i (float columns lo x y z, hi x y z) reaches into `reach` (hi x y z, lo x y z).
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 __attribute__((target_clones("avx2", "default")))
@@ -223,13 +255,6 @@ void mark_box_overlaps(const std::array<std::vector<float>, 6>& columns, const s
   for (int i = 0; i < n; ++i)
     overlap[i] = (lx[i] <= rx) & (ly[i] <= ry) & (lz[i] <= rz) & (hx[i] >= qx) & (hy[i] >= qy) & (hz[i] >= qz);
 }
-
-// A partner that passed the filters, with the squared gap between the bounding boxes (a lower bound of the
-// squared segment distance).
-struct Nearby {
-  int ia;
-  double box_gap2;
-};
 
 // The k partners closest by (distance, line of frame a) among `nearby`, those within max_distance; the same
 // choice as computing every distance and keeping the k smallest. A partner whose box gap exceeds the k-th
@@ -283,27 +308,31 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   const double min_cos_normals = std::cos(deg2rad(opt.max_normal_angle_deg));
   const int k = opt.max_pairs_per_line;
 
-  const bool brute_force = static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs;
+  // (Usable lines are finite: they always have bounds.)
+  const bool brute_force =
+      static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs || !indexed.have_bounds;
   // The near search reaches as far as its grid's cells allow (a coarsened grid reaches farther at the same cost);
   // it is worth a grid only when that is short of the pass distance.
   double near_distance = -1.0;
   const double near_build = opt.max_distance * kNearFraction * (1.0 + 1e-6);
-  if (k > 0 && !brute_force && SegmentGrid::reach_for(usable_a, near_build, kNearMaxCells) < opt.max_distance) {
-    indexed.near_grid.emplace(usable_a, near_build, kNearMaxCells);
+  const SegmentGrid* near_grid = nullptr;
+  if (k > 0 && !brute_force && indexed.reach_for(near_build, kNearMaxCells) < opt.max_distance) {
+    near_grid = &indexed.grid(near_build, kNearMaxCells);
     // It must hold every line the pass grid holds (only absurdly long ones can be missing).
-    if (!indexed.near_grid->left_out_any()) near_distance = indexed.near_grid->reach() / (1.0 + 1e-6);
+    if (!near_grid->left_out_any()) near_distance = near_grid->reach() / (1.0 + 1e-6);
   }
-  std::vector<int> last_seen(usable_a.size(), -1);
-  int stamp = -1;
-  std::vector<std::uint8_t> overlap(brute_force ? usable_a.size() + 8 : 0);  // padded to whole 8-byte words
-  std::vector<Nearby> nearby(usable_a.size());  // a line of frame a at most once per search
+  std::vector<int>& last_seen = indexed.last_seen;
+  int& stamp = indexed.stamp;
+  std::uint8_t* const overlap = indexed.overlap.data();
+  Nearby* const nearby = indexed.nearby.data();
   size_t nearby_count = 0;
-  std::vector<std::pair<double, int>> best;
+  std::vector<std::pair<double, int>>& best = indexed.best;
   // Grids are built for a slightly larger distance: a partner measured within the distance is certainly found.
+  const SegmentGrid* pass_grid_built = nullptr;
   auto pass_grid = [&]() -> const SegmentGrid* {
     if (brute_force) return nullptr;
-    if (!indexed.grid) indexed.grid.emplace(usable_a, opt.max_distance * (1.0 + 1e-6), kMaxCells);
-    return &*indexed.grid;
+    if (!pass_grid_built) pass_grid_built = &indexed.grid(opt.max_distance * (1.0 + 1e-6), kMaxCells);
+    return pass_grid_built;
   };
   for (int ib = 0; ib < static_cast<int>(lines_b.size()); ++ib) {
     const LineFeature& lb = lines_b[ib];
@@ -340,11 +369,11 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
           reach[c] = IndexedLines::round_up(sb_hi[c] + box_gap + 1e-9);
           reach[3 + c] = IndexedLines::round_down(sb_lo[c] - box_gap - 1e-9);
         }
-        mark_box_overlaps(indexed.box_columns, reach, overlap.data());
+        mark_box_overlaps(indexed.box_columns, reach, overlap);
         const int na = static_cast<int>(usable_a.size());
         for (int word = 0; word < na; word += 8) {
           std::uint64_t any;  // overlaps are few: skip 8 boxes at a time
-          std::memcpy(&any, overlap.data() + word, sizeof any);
+          std::memcpy(&any, overlap + word, sizeof any);
           if (any == 0) continue;
           for (int ia = word; ia < std::min(word + 8, na); ++ia)
             if (overlap[ia]) consider(ia);
@@ -358,12 +387,12 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       // Most lines have their k closest partners much nearer than the pass distance: look there first. When
       // k partners lie within near_distance, no partner farther away can displace them.
       if (near_distance > 0.0 && near_distance < opt.max_distance) {
-        gather(near_distance, &*indexed.near_grid);
-        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_carrier, sb_magnitude, near_distance, k, &best);
+        gather(near_distance, near_grid);
+        closest_partners(nearby, nearby_count, indexed, sb, sb_carrier, sb_magnitude, near_distance, k, &best);
       }
       if (static_cast<int>(best.size()) < k) {
         gather(opt.max_distance, pass_grid());
-        closest_partners(nearby.data(), nearby_count, indexed, sb, sb_carrier, sb_magnitude, opt.max_distance, k, &best);
+        closest_partners(nearby, nearby_count, indexed, sb, sb_carrier, sb_magnitude, opt.max_distance, k, &best);
       }
     } else {
       gather(opt.max_distance, pass_grid());
@@ -409,13 +438,18 @@ double segment_distance(const Segment& s1, const Segment& s2) {
   return ((s1.a + d1 * s) - (s2.a + d2 * t)).norm();
 }
 
-void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
+CandidateIndex::CandidateIndex(const ScanFeatures& a)
+    : a_(&a), h_(std::make_unique<Lines>(a.h_lines)), v_(std::make_unique<Lines>(a.v_lines)) {}
+
+CandidateIndex::~CandidateIndex() = default;
+
+void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidTransform& T_ab_guess,
                       const CandidateOptions& options, Correspondences* out, CandidateStats* stats) {
   *out = Correspondences{};
-  IndexedLines h_a(a.h_lines), v_a(a.v_lines);
+  const ScanFeatures& a = *index.a_;
   std::vector<LinePair> pairs;
-  match_lines(h_a, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
-  match_lines(v_a, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
+  match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
+  match_lines(*index.v_, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
 
   // Cluster of the pair: the previous frame's normal cluster (paper §6.3), else the current frame's.
   std::array<int, 4> counts{};

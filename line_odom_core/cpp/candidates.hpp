@@ -4,6 +4,7 @@
 // the other plane. Weights are the inverse size of the pair's normal cluster (1 for pairs without a normal).
 #pragma once
 
+#include <memory>
 #include <vector>
 
 #include "motion_estimation.hpp"
@@ -30,9 +31,30 @@ struct CandidateStats {
 // Closest distance between two 3D segments.
 double segment_distance(const Segment& s1, const Segment& s2);
 
-// Frame a = previous scan, b = current scan; T_ab_guess maps b into a. Fills `out` (line pairs with
-// segments, weights and clusters; plane pairs) in a deterministic order.
-void build_candidates(const ScanFeatures& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
+// The lines of frame a (the previous scan, never moved) indexed once for every pass matched against it: records,
+// carriers, box columns, and the segment grids the passes ask for (a grid is reused by any later pass that needs
+// the same cells). `a` must outlive the index, unchanged.
+class CandidateIndex {
+ public:
+  explicit CandidateIndex(const ScanFeatures& a);
+  ~CandidateIndex();
+  CandidateIndex(const CandidateIndex&) = delete;
+  CandidateIndex& operator=(const CandidateIndex&) = delete;
+
+  const ScanFeatures& features() const { return *a_; }
+
+  struct Lines;  // one kind (H or V) of frame a's lines (candidates.cpp)
+
+ private:
+  friend void build_candidates(CandidateIndex&, const ScanFeatures&, const RigidTransform&, const CandidateOptions&,
+                               Correspondences*, CandidateStats*);
+  const ScanFeatures* a_;
+  std::unique_ptr<Lines> h_, v_;
+};
+
+// Frame a = previous scan (indexed), b = current scan; T_ab_guess maps b into a. Fills `out` (line pairs with
+// segments, weights and clusters; plane pairs) in a deterministic order, the same for a fresh or a reused index.
+void build_candidates(CandidateIndex& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
                       const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr);
 
 }  // namespace line_odom

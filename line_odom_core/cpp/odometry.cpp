@@ -175,9 +175,11 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     return deviation.t.norm() <= reg.max_translation &&
            rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
   };
+  std::unique_ptr<CandidateIndex> prev_index;  // frame a never moves: indexed once for all passes
   for (int pass = 0; pass < reg.passes; ++pass) {
     stage = Stopwatch();
-    build_candidates(prev, cur, best, copt, &corr, &cstats);
+    if (!prev_index) prev_index = std::make_unique<CandidateIndex>(prev);
+    build_candidates(*prev_index, cur, best, copt, &corr, &cstats);
     st->ms.candidates += stage.ms();
     st->candidates = cstats.line_pairs;
     st->plane_candidates = cstats.plane_pairs;
