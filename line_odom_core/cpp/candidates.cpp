@@ -216,13 +216,24 @@ struct CandidateIndex::Lines {
     return grids.emplace_back(lines, lo, hi, cell);
   }
 
+  // Outward rounding to float: v itself when exact, else the float next to it on the outer side.
   static float round_down(double v) {
     const float f = static_cast<float>(v);
-    return static_cast<double>(f) <= v ? f : std::nextafter(f, -std::numeric_limits<float>::infinity());
+    return static_cast<double>(f) <= v ? f : next_float(f, false);
   }
   static float round_up(double v) {
     const float f = static_cast<float>(v);
-    return static_cast<double>(f) >= v ? f : std::nextafter(f, std::numeric_limits<float>::infinity());
+    return static_cast<double>(f) >= v ? f : next_float(f, true);
+  }
+  // std::nextafter(f, +-infinity), inline for finite nonzero f (one step of the bit pattern).
+  static float next_float(float f, bool up) {
+    if (f == 0.0f || !std::isfinite(f))
+      return std::nextafter(f, up ? std::numeric_limits<float>::infinity() : -std::numeric_limits<float>::infinity());
+    std::uint32_t bits;
+    std::memcpy(&bits, &f, sizeof bits);
+    bits = (f > 0.0f) == up ? bits + 1 : bits - 1;  // away from zero: larger magnitude
+    std::memcpy(&f, &bits, sizeof f);
+    return f;
   }
 
   static std::vector<const LineFeature*> usable(const std::vector<LineFeature>& all) {
@@ -351,9 +362,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       nearby_count = 0;
       ++stamp;
       const double box_gap = distance * (1.0 + 1e-9) + 1e-9;
-      auto consider = [&](int ia) {
-        if (last_seen[ia] == stamp) return;
-        last_seen[ia] = stamp;
+      auto test = [&](int ia) {
         const LineRecord& r = records[ia];
         const Vec3 gap_lo = r.box_lo - sb_hi, gap_hi = sb_lo - r.box_hi;
         if (gap_lo.maxCoeff() > box_gap || gap_hi.maxCoeff() > box_gap) return;
@@ -361,6 +370,11 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
           return;
         if (std::abs(r.d.dot(db)) > max_cos_lines) return;
         nearby[nearby_count++] = {ia, gap_lo.cwiseMax(gap_hi).cwiseMax(0.0).squaredNorm()};
+      };
+      auto consider = [&](int ia) {  // the grid may visit a line more than once
+        if (last_seen[ia] == stamp) return;
+        last_seen[ia] = stamp;
+        test(ia);
       };
       if (brute_force) {
         // Few pairs: a scan of the boxes costs less than the grid's cell lists.
@@ -376,7 +390,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
           std::memcpy(&any, overlap + word, sizeof any);
           if (any == 0) continue;
           for (int ia = word; ia < std::min(word + 8, na); ++ia)
-            if (overlap[ia]) consider(ia);
+            if (overlap[ia]) test(ia);
         }
       } else {
         grid->for_each_near(sb, consider);
