@@ -386,11 +386,15 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
         mark_box_overlaps(indexed.box_columns, reach, overlap);
         const int na = static_cast<int>(usable_a.size());
         for (int word = 0; word < na; word += 8) {
-          std::uint64_t any;  // overlaps are few: skip 8 boxes at a time
+          std::uint64_t any;  // overlaps are few: 8 boxes at a time, then only the set bytes (the padding is 0)
           std::memcpy(&any, overlap + word, sizeof any);
-          if (any == 0) continue;
-          for (int ia = word; ia < std::min(word + 8, na); ++ia)
-            if (overlap[ia]) test(ia);
+#if defined(__GNUC__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+          for (; any != 0; any &= any - 1) test(word + (__builtin_ctzll(any) >> 3));
+#else
+          if (any != 0)
+            for (int ia = word; ia < std::min(word + 8, na); ++ia)
+              if (overlap[ia]) test(ia);
+#endif
         }
       } else {
         grid->for_each_near(sb, consider);
