@@ -15,8 +15,8 @@ Mat3 skew(const Vec3& w) {
   return S;
 }
 
-constexpr double kConvergedTranslation = 1e-5;  // m: a step this small ends the iteration
-constexpr double kConvergedRotation = 1e-6;     // rad
+constexpr double kConvergedTranslation = 1e-4;  // m: a step this small ends the iteration
+constexpr double kConvergedRotation = 1e-5;     // rad
 
 double huber_weight(double r_abs, double delta) { return r_abs <= delta ? 1.0 : delta / r_abs; }
 
