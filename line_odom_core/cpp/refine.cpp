@@ -215,8 +215,11 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
 
   RigidTransform T = T0;
   bool ok = true;
+  NormalEquations ne;
+  bool ne_at_T = false;
   for (int it = 0; it < options.iterations; ++it) {
-    const NormalEquations ne = accumulate(data, pairs, T, options, weight_scale);
+    ne = accumulate(data, pairs, T, options, weight_scale);
+    ne_at_T = true;
     if (ne.residuals < 6) {
       ok = false;
       break;
@@ -227,13 +230,13 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
       ok = false;
       break;
     }
-    const RigidTransform step = se3_exp(dx);
-    T = step * T;
     res.iterations = it + 1;
+    // Converged: a step this small is not taken, so the equations just built are those of the result.
     if (dx.head<3>().norm() < kConvergedTranslation && dx.tail<3>().norm() < kConvergedRotation) break;
+    T = se3_exp(dx) * T;
+    ne_at_T = false;
   }
-
-  const NormalEquations ne = accumulate(data, pairs, ok ? T : T0, options, weight_scale);
+  if (!ok || !ne_at_T) ne = accumulate(data, pairs, ok ? T : T0, options, weight_scale);
   if (!ok || ne.residuals < 6 || !T.is_finite()) {
     res.T = T0;
     res.line_inliers = ne.line_inliers;
