@@ -54,12 +54,14 @@ def time_frames(register, kiss_odom, kiss_points, inputs, stage_ms, call_ms, kis
             stage_ms[s].append(result.stats["ms"][s])
         if k >= 2:
             stage_ms["steady"].append(result.stats["ms"]["total"])
+        stage_ms["fitted"].append(result.stats["h_lines"] + result.stats["v_lines"])
+        stage_ms["registered"].append(result.stats["registered_lines"])
         if kiss_odom is not None:
             kiss_ms.append(kiss_call)
 
 
 def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat):
-    stage_ms = {s: [] for s in (*STAGES, "steady")}
+    stage_ms = {s: [] for s in (*STAGES, "steady", "fitted", "registered")}
     call_ms, kiss_ms = [], []
     for _ in range(repeat):
         for _seq, frames in frames_by_seq:
@@ -74,7 +76,7 @@ def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat):
 def time_depth(level, frames, kiss, kiss_threads, repeat):
     data = tum_sequence(frames)
     depths = [(data.depth(i), float(data.stamps[i])) for i in range(len(data))]
-    stage_ms = {s: [] for s in (*STAGES, "steady")}
+    stage_ms = {s: [] for s in (*STAGES, "steady", "fitted", "registered")}
     call_ms, kiss_ms = [], []
     for _ in range(repeat):
         odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": level}))
@@ -95,6 +97,7 @@ def goal_text(name, level, stage_ms, kiss_ms):
     if name == "kitti" and level == 1:
         if kiss_ms:
             parts.append(f"total <= KISS/2: {'MET' if total <= 0.5 * np.mean(kiss_ms) else 'MISSED'}")
+        parts.append(f">= 20 Hz: {'MET' if total <= 50.0 else 'MISSED'}")
         parts.append(f"line fitting <= 10 ms: {'MET' if np.mean(stage_ms['lines']) <= 10.0 else 'MISSED'}")
     elif name == "kitti" and level == 6:
         parts.append(f"total <= 5 ms: {'MET' if total <= 5.0 else 'MISSED'}")
@@ -120,9 +123,10 @@ def main(argv=None) -> int:
         print(KISS_HINT)
     print(f"line_odom_core {line_odom_core.__version__} ({line_odom_core.build_info()['flags']}); KISS-ICP "
           f"{'on, ' + str(args.kiss_threads) + ' thread(s)' if kiss else 'off'}; mean ms per frame (p50 and p95 of total;"
-          " steady = mean total without each run's first registration, which searches the first motion)")
+          " steady = mean total without each run's first registration, which searches the first motion;"
+          " lines = fitted / registered per frame, registration.max_lines)")
     head = (f"{'data':5} {'res':5} {'n':>4} | " + " ".join(f"{s:>10}" for s in STAGES) +
-            f" {'p50':>7} {'p95':>7} {'steady':>7} {'call':>7} | {'KISS-ICP':>8} {'ratio':>6} | goal")
+            f" {'p50':>7} {'p95':>7} {'steady':>7} {'call':>7} {'lines':>11} | {'KISS-ICP':>8} {'ratio':>6} | goal")
     print(head)
     print("-" * len(head))
     cases = []
@@ -146,7 +150,8 @@ def print_row(name, level, measured):
     kiss = f"{np.mean(kiss_ms):8.1f} {np.mean(stage_ms['total']) / np.mean(kiss_ms):6.2f}" if kiss_ms else \
         f"{'n/a':>8} {'':>6}"
     steady = f"{np.mean(stage_ms['steady']):7.2f}" if stage_ms["steady"] else f"{'-':>7}"
-    print(f"{name:5} {res:5} {len(call_ms):4d} | {cells} {p50:7.2f} {p95:7.2f} {steady} {np.mean(call_ms):7.2f} | {kiss} | "
+    lines = f"{np.mean(stage_ms['fitted']):.0f}/{np.mean(stage_ms['registered']):.0f}"
+    print(f"{name:5} {res:5} {len(call_ms):4d} | {cells} {p50:7.2f} {p95:7.2f} {steady} {np.mean(call_ms):7.2f} {lines:>11} | {kiss} | "
           f"{goal_text(name, level, stage_ms, kiss_ms)}", flush=True)
 
 

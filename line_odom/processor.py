@@ -449,7 +449,8 @@ class OdometryProcessor:
         if lat.size:
             values.update(latency_ms_last=lat[-1], latency_ms_mean=float(lat.mean()),
                           latency_ms_p95=float(np.percentile(lat, 95)))
-        for key in ("solver", "inliers", "degenerate", "candidates", "h_lines", "v_lines", "planes"):
+        for key in (
+                "solver", "inliers", "degenerate", "candidates", "h_lines", "v_lines", "registered_lines", "planes"):
             if key in stats:
                 values[key] = stats[key]
         for stage, ms in (stats.get("ms") or {}).items():
