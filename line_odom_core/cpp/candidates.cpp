@@ -125,7 +125,9 @@ class SegmentGrid {
   std::vector<int> begin_, ids_;
 };
 
-constexpr double kBruteForcePairs = 3e5;  // up to this many line pairs, match without the grid
+// Up to this many line pairs, match without the grid: a box scan (listed for the later passes) costs less than the
+// grids up to full-resolution KITTI frames registering ~3000 lines.
+constexpr double kBruteForcePairs = 2e6;
 constexpr double kMaxCells = 1 << 21;  // grid size bound: coarser cells beyond (any frame costs a bounded grid)
 // The near search for a line's closest partners (max_pairs_per_line > 0) reaches this share of the pass distance,
 // on a grid kept small (coarser cells beyond): on full KITTI frames a near grid of 2^19 cells cost more time in
@@ -179,6 +181,14 @@ struct CandidateIndex::Lines {
   std::vector<std::uint8_t> overlap;
   std::vector<Nearby> nearby;
   std::vector<std::pair<double, int>> best;
+  // The box scan of the first match against lines_b: per line of b its float reach and the lines whose float boxes
+  // reached into it. A later match of the same lines_b whose reach lies within the listed one (the guess moved the
+  // segment less than the distance shrank) re-tests the listed lines instead of scanning all boxes: the same lines
+  // in the same order.
+  const std::vector<LineFeature>* listed_b = nullptr;
+  std::vector<std::array<float, 6>> listed_reach;
+  std::vector<std::pair<int, int>> listed_range;  // [begin, end) in listed_ids
+  std::vector<int> listed_ids;
 
   explicit Lines(const std::vector<LineFeature>& all) : lines(usable(all)) {
     records.resize(lines.size());
@@ -338,6 +348,13 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   std::vector<int>& last_seen = indexed.last_seen;
   int& stamp = indexed.stamp;
   std::uint8_t* const overlap = indexed.overlap.data();
+  const bool listing = brute_force && indexed.listed_b != &lines_b;
+  if (listing) {
+    indexed.listed_b = &lines_b;
+    indexed.listed_reach.assign(lines_b.size(), {});
+    indexed.listed_range.assign(lines_b.size(), {0, 0});
+    indexed.listed_ids.clear();
+  }
   Nearby* const nearby = indexed.nearby.data();
   size_t nearby_count = 0;
   std::vector<std::pair<double, int>>& best = indexed.best;
@@ -386,18 +403,41 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
           reach[c] = IndexedLines::round_up(sb_hi[c] + box_gap + 1e-9);
           reach[3 + c] = IndexedLines::round_down(sb_lo[c] - box_gap - 1e-9);
         }
+        const std::array<float, 6>& listed = indexed.listed_reach[ib];
+        if (!listing && reach[0] <= listed[0] && reach[1] <= listed[1] && reach[2] <= listed[2] &&
+            reach[3] >= listed[3] && reach[4] >= listed[4] && reach[5] >= listed[5]) {
+          // Every box reaching into `reach` reaches into the listed reach: re-test the listed boxes.
+          const auto& box = indexed.box_columns;
+          const auto [begin, end] = indexed.listed_range[ib];
+          for (int e = begin; e < end; ++e) {
+            const int ia = indexed.listed_ids[e];
+            if ((box[0][ia] <= reach[0]) & (box[1][ia] <= reach[1]) & (box[2][ia] <= reach[2]) &
+                (box[3][ia] >= reach[3]) & (box[4][ia] >= reach[4]) & (box[5][ia] >= reach[5]))
+              test(ia);
+          }
+          return;
+        }
         mark_box_overlaps(indexed.box_columns, reach, overlap);
         const int na = static_cast<int>(usable_a.size());
+        auto visit = [&](int ia) {
+          if (listing) indexed.listed_ids.push_back(ia);
+          test(ia);
+        };
+        const int listed_begin = static_cast<int>(indexed.listed_ids.size());
         for (int word = 0; word < na; word += 8) {
           std::uint64_t any;  // overlaps are few: 8 boxes at a time, then only the set bytes (the padding is 0)
           std::memcpy(&any, overlap + word, sizeof any);
 #if defined(__GNUC__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-          for (; any != 0; any &= any - 1) test(word + (__builtin_ctzll(any) >> 3));
+          for (; any != 0; any &= any - 1) visit(word + (__builtin_ctzll(any) >> 3));
 #else
           if (any != 0)
             for (int ia = word; ia < std::min(word + 8, na); ++ia)
-              if (overlap[ia]) test(ia);
+              if (overlap[ia]) visit(ia);
 #endif
+        }
+        if (listing) {
+          indexed.listed_reach[ib] = reach;
+          indexed.listed_range[ib] = {listed_begin, static_cast<int>(indexed.listed_ids.size())};
         }
       } else {
         grid->for_each_near(sb, consider);

@@ -54,6 +54,8 @@ class CandidateIndex {
 
 // Frame a = previous scan (indexed), b = current scan; T_ab_guess maps b into a. Fills `out` (line pairs with
 // segments, weights and clusters; plane pairs) in a deterministic order, the same for a fresh or a reused index.
+// Repeated calls with the same b object (unchanged in between, as in the passes of one frame) re-check the boxes the
+// first call found near each line of b instead of scanning all, where the guesses allow: the same result.
 void build_candidates(CandidateIndex& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
                       const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr);
 
