@@ -212,7 +212,7 @@ struct CandidateIndex::Lines {
     }
     have_bounds = SegmentGrid::bounds(lines, &lo, &hi);
     last_seen.assign(lines.size(), -1);
-    overlap.resize(lines.size() + 8);  // padded to whole 8-byte words
+    overlap.resize(lines.size() + 32);  // padded to whole 32-byte blocks (the padding stays 0)
     nearby.resize(lines.size());       // a line of frame a at most once per search
   }
 
@@ -424,16 +424,20 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
           test(ia);
         };
         const int listed_begin = static_cast<int>(indexed.listed_ids.size());
-        for (int word = 0; word < na; word += 8) {
-          std::uint64_t any;  // overlaps are few: 8 boxes at a time, then only the set bytes (the padding is 0)
-          std::memcpy(&any, overlap + word, sizeof any);
+        for (int block = 0; block < na; block += 32) {
+          std::uint64_t words[4];  // overlaps are few: 32 boxes at a time, then only the set bytes
+          std::memcpy(words, overlap + block, sizeof words);
+          if ((words[0] | words[1] | words[2] | words[3]) == 0) continue;
+          for (int w = 0; w < 4; ++w) {
+            const int word = block + 8 * w;
 #if defined(__GNUC__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-          for (; any != 0; any &= any - 1) visit(word + (__builtin_ctzll(any) >> 3));
+            for (std::uint64_t any = words[w]; any != 0; any &= any - 1) visit(word + (__builtin_ctzll(any) >> 3));
 #else
-          if (any != 0)
-            for (int ia = word; ia < std::min(word + 8, na); ++ia)
-              if (overlap[ia]) visit(ia);
+            if (words[w] != 0)
+              for (int ia = word; ia < std::min(word + 8, na); ++ia)
+                if (overlap[ia]) visit(ia);
 #endif
+          }
         }
         if (listing) {
           indexed.listed_reach[ib] = reach;
