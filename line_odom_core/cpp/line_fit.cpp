@@ -126,46 +126,74 @@ inline __attribute__((always_inline)) double excess2(const LineLeastSquares& f, 
 
 void remove_point(Moments* m, const Vec3& p) { m->remove(p); }
 
-// Squared distances of points 1..n of X/Y/Z to the chord from point 0 to point n+1 over their squared
-// thresholds (1 / W), into R; returns the index (1..n) of the largest ratio above 1, -1 if none.
-// Structure-of-arrays loop that the compiler vectorizes (AVX2 inside fit_pass's AVX2 clone).
-int chord_ratios(const double* __restrict X0, const double* __restrict Y0, const double* __restrict Z0,
-                 const double* __restrict W, int n, double* __restrict R) {
+// Four lanes of doubles / 64-bit integers (GCC vector extensions: AVX2 registers in the AVX2 clones, SSE2 pairs
+// in the baseline; the same IEEE operations lane by lane as the scalar expressions they replace).
+// (Always inlined: these helpers never pass vectors across a call, whose ABI would differ between the clones.)
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef double F4 __attribute__((vector_size(32)));
+typedef std::int64_t I4 __attribute__((vector_size(32)));
+constexpr int kLanes = 4;
+constexpr int kPad = kLanes;  // elements readable past the end of a scan buffer's arrays (lanes past n are masked)
+
+inline __attribute__((always_inline)) F4 load4(const double* p) {
+  F4 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+// Index (1..n) of the largest ratio above 1 of the squared distances of points 1..n of X/Y/Z to the chord from
+// point 0 to point n+1 over their squared thresholds (times W), -1 if none; ties: the first. The ratios are >= +0
+// (squares times positive factors; a NaN from absurd scales counts by its bits), so they order as their bit
+// patterns do: each lane keeps its largest bits and their first index. Reads up to kPad - 1 elements past
+// X0[n+1] / W[n-1] (masked out).
+inline __attribute__((always_inline)) int farthest_from_chord(const double* __restrict X0,
+                                                              const double* __restrict Y0,
+                                                              const double* __restrict Z0,
+                                                              const double* __restrict W, int n) {
   const double ax = X0[0], ay = Y0[0], az = Z0[0];
   const double cx = X0[n + 1] - ax, cy = Y0[n + 1] - ay, cz = Z0[n + 1] - az;
   const double len2 = cx * cx + cy * cy + cz * cz;
-  const bool degenerate = !(len2 > 1e-24);
-  const double inv_len2 = degenerate ? 0.0 : 1.0 / len2;
   const double* __restrict X = X0 + 1;
   const double* __restrict Y = Y0 + 1;
   const double* __restrict Z = Z0 + 1;
-  // The ratios are >= +0 (squares times positive factors), so they order as their bit patterns do: their
-  // maximum is a vectorized integer max in the same loop, then the first index holding it is looked up.
   std::int64_t top = 0;
-  auto keep = [&top, R](int i, double r) {
-    R[i] = r;
-    std::int64_t b;
-    std::memcpy(&b, &r, sizeof b);
-    top = b > top ? b : top;
-  };
-  if (degenerate) {
+  int at = 0;
+  if (!(len2 > 1e-24)) {  // degenerate chord: distances to its first point
     for (int i = 0; i < n; ++i) {
       const double rx = X[i] - ax, ry = Y[i] - ay, rz = Z[i] - az;
-      keep(i, (rx * rx + ry * ry + rz * rz) * W[i]);
+      const double r = (rx * rx + ry * ry + rz * rz) * W[i];
+      std::int64_t b;
+      std::memcpy(&b, &r, sizeof b);
+      if (b > top) top = b, at = i;
     }
   } else {
-    for (int i = 0; i < n; ++i) {
-      const double rx = X[i] - ax, ry = Y[i] - ay, rz = Z[i] - az;
-      const double ux = ry * cz - rz * cy, uy = rz * cx - rx * cz, uz = rx * cy - ry * cx;
-      keep(i, (ux * ux + uy * uy + uz * uz) * (inv_len2 * W[i]));
+    const double inv_len2 = 1.0 / len2;
+    I4 best = {0, 0, 0, 0}, best_at = {0, 0, 0, 0}, index = {0, 1, 2, 3};
+    const I4 count = {n, n, n, n};
+    for (int i = 0; i < n; i += kLanes, index += kLanes) {
+      const F4 rx = load4(X + i) - ax, ry = load4(Y + i) - ay, rz = load4(Z + i) - az;
+      const F4 ux = ry * cz - rz * cy, uy = rz * cx - rx * cz, uz = rx * cy - ry * cx;
+      const F4 r = (ux * ux + uy * uy + uz * uz) * (inv_len2 * load4(W + i));
+      I4 bits;
+      std::memcpy(&bits, &r, sizeof bits);
+      bits &= index < count;
+      const I4 more = bits > best;
+      best = more ? bits : best;
+      best_at = more ? index : best_at;
     }
+    // across the lanes, without branches: the largest bits, at the smallest index among the lanes holding them
+    for (const I4 swap : {I4{2, 3, 0, 1}, I4{1, 0, 3, 2}}) {
+      const I4 other = __builtin_shuffle(best, swap), other_at = __builtin_shuffle(best_at, swap);
+      const I4 take = (other > best) | ((other == best) & (other_at < best_at));
+      best = take ? other : best;
+      best_at = take ? other_at : best_at;
+    }
+    top = best[0];
+    at = static_cast<int>(best_at[0]);
   }
   double worst;
   std::memcpy(&worst, &top, sizeof worst);
-  if (!(worst > 1.0)) return -1;
-  int i = 0;
-  while (R[i] != worst) ++i;
-  return 1 + i;
+  return worst > 1.0 ? 1 + at : -1;
 }
 
 constexpr double kMargin = 1e-9;  // relative margin of the squared decision tests (see breaks_between)
@@ -350,10 +378,8 @@ class ScanLineFitter {
 
   // Index in (a, b) of the point farthest from the chord a-b relative to its threshold, -1 if all are within.
   int farthest_beyond_threshold(const ScanBuffer& buf, int a, int b) {
-    const int n = b - a - 1;
-    if (static_cast<int>(ratio_.size()) < n) ratio_.resize(n);
-    const int k = chord_ratios(buf.x.data() + a, buf.y.data() + a, buf.z.data() + a, buf.inv_tau2.data() + a + 1,
-                               n, ratio_.data());
+    const int k = farthest_from_chord(buf.x.data() + a, buf.y.data() + a, buf.z.data() + a,
+                                      buf.inv_tau2.data() + a + 1, b - a - 1);
     return k < 0 ? -1 : a + k;
   }
 
@@ -589,7 +615,6 @@ class ScanLineFitter {
   std::vector<CandidateLine> candidates_;
   std::vector<int> skipped_;
   std::vector<std::uint8_t> is_skipped_;
-  std::vector<double> ratio_;
   std::vector<std::int32_t> break_code_;
   bool fitted_ = false;   // the current line's fit is known (finished, or pending below)
   bool pending_ = false;  // its fit is the unfinished pending_pre_ from seed pending_seed_
@@ -647,11 +672,11 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
     buf->cell.resize(n);
     buf->pos.resize(n);
     buf->p.resize(n);
-    buf->x.resize(n);
-    buf->y.resize(n);
-    buf->z.resize(n);
+    buf->x.resize(n + kPad);
+    buf->y.resize(n + kPad);
+    buf->z.resize(n + kPad);
     buf->tau.resize(n);
-    buf->inv_tau2.resize(n);
+    buf->inv_tau2.resize(n + kPad);
     buf->prefix.resize(n + 1);
   }
   const int cell0 = horizontal ? index * img.cols : index;
