@@ -251,13 +251,25 @@ class ScanLineFitter {
     if (static_cast<int>(break_code_.size()) < n) break_code_.resize(n);
     break_codes(buf.x.data(), buf.y.data(), buf.z.data(), buf.tau.data(), buf.pos.data(), n, cfg_.max_gap,
                 sin2_min_incidence_, break_code_.data());
+    // Runs end at the breaks; most codes are 0, skipped eight at a time.
+    const std::int32_t* code = break_code_.data();
     int run_start = 0;
-    for (int j = 1; j <= n; ++j) {
-      if (j == n || (break_code_[j] == 1 || (break_code_[j] == 2 && breaks_between(buf, j - 1, j)))) {
+    for (int j = 1; j < n; ++j) {
+      if (j + 8 <= n) {
+        I4 word;
+        std::memcpy(&word, code + j, sizeof word);
+        if ((word[0] | word[1] | word[2] | word[3]) == 0) {
+          j += 7;
+          continue;
+        }
+      }
+      if (code[j] == 0) continue;
+      if (code[j] == 1 || breaks_between(buf, j - 1, j)) {
         fit_run(buf, run_start, j - 1, min_points);
         run_start = j;
       }
     }
+    if (n > 0) fit_run(buf, run_start, n - 1, min_points);
     for (auto& c : candidates_) c.accepted = acceptable(buf, c, min_points);
     resolve_shared_points(buf, min_points);
     for (const auto& c : candidates_) {
