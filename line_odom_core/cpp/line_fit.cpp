@@ -198,6 +198,26 @@ inline __attribute__((always_inline)) int farthest_from_chord(const double* __re
 
 constexpr double kMargin = 1e-9;  // relative margin of the squared decision tests (see breaks_between)
 
+inline __attribute__((always_inline)) bool any(const I4& m) { return (m[0] | m[1] | m[2] | m[3]) != 0; }
+
+// The clear cases of try_merge's test of points k..k+len-1 (len <= 4) against the prefit line (centroid c,
+// unnormalized direction u): e = |(p - c) x u|^2 / tau^2 against |u|^2 (1 +- kMargin), the same IEEE operations as
+// distance2 and excess2 lane by lane. 1: a point is clearly outside; 2: a point is close to the margin (the caller
+// decides exactly); 0: all clearly inside.
+inline __attribute__((always_inline)) int prefit_verdict(const ScanBuffer& buf, int k, int len, const LinePrefit& pre) {
+  const double cx = pre.centroid.x(), cy = pre.centroid.y(), cz = pre.centroid.z();
+  const double ux = pre.u.x(), uy = pre.u.y(), uz = pre.u.z();
+  const F4 rx = load4(buf.x.data() + k) - cx, ry = load4(buf.y.data() + k) - cy, rz = load4(buf.z.data() + k) - cz;
+  const F4 vx = ry * uz - rz * uy, vy = rz * ux - rx * uz, vz = rx * uy - ry * ux;
+  const F4 e = (vx * vx + vy * vy + vz * vz) * load4(buf.inv_tau2.data() + k);
+  const I4 lane = {0, 1, 2, 3};
+  const I4 valid = lane < len;
+  const I4 out = e > pre.norm2 * (1.0 + kMargin);
+  const I4 in = e < pre.norm2 * (1.0 - kMargin);
+  if (any(out & valid)) return 1;
+  return any(~(out | in) & valid) ? 2 : 0;
+}
+
 // The clear cases of ScanLineFitter::breaks_between for every pair of neighbouring points (j - 1, j), j = 1..n-1,
 // in one vectorizable pass (the same IEEE operations): code[j] 1 = break, 0 = none, 2 = close to a margin (the
 // caller decides it exactly).
@@ -426,6 +446,18 @@ class ScanLineFitter {
     const LinePrefit pre = prefit_line(m, seed);
     LineLeastSquares f;
     bool finished = false;
+    // The clear cases four points at a time (a line without skipped points: its end checks are its first and last
+    // four points); a point close to the margin takes the exact test below, point by point.
+    bool decided = false;
+    if (pre.usable() && line->skipped_begin == line->skipped_end) {
+      int verdict = 0;
+      for (int k = a; k <= b && verdict == 0; k += kLanes) verdict = prefit_verdict(buf, k, b + 1 - k, pre);
+      const int span = line->last + 1 - line->first;
+      if (verdict == 0) verdict = prefit_verdict(buf, line->first, span, pre);
+      if (verdict == 0 && span > kLanes) verdict = prefit_verdict(buf, line->last + 1 - kLanes, kLanes, pre);
+      if (verdict == 1) return false;
+      decided = verdict == 0;
+    }
     auto outside = [&](int k) {
       if (pre.usable()) {
         const double e = distance2(buf.p[k], pre.centroid, pre.u) * buf.inv_tau2[k];
@@ -438,20 +470,22 @@ class ScanLineFitter {
       }
       return excess2(f, buf, k) > 1.0;
     };
-    for (int k = a; k <= b; ++k)
-      if (outside(k)) return false;
-    int checked = 0;
-    for (int k = line->first; k <= line->last && checked < kEndChecks; ++k)
-      if (!is_skipped_[k]) {
+    if (!decided) {
+      for (int k = a; k <= b; ++k)
         if (outside(k)) return false;
-        ++checked;
-      }
-    checked = 0;
-    for (int k = line->last; k >= line->first && checked < kEndChecks; --k)
-      if (!is_skipped_[k]) {
-        if (outside(k)) return false;
-        ++checked;
-      }
+      int checked = 0;
+      for (int k = line->first; k <= line->last && checked < kEndChecks; ++k)
+        if (!is_skipped_[k]) {
+          if (outside(k)) return false;
+          ++checked;
+        }
+      checked = 0;
+      for (int k = line->last; k >= line->first && checked < kEndChecks; --k)
+        if (!is_skipped_[k]) {
+          if (outside(k)) return false;
+          ++checked;
+        }
+    }
     for (int k = line->last + 1; k < a; ++k) {
       skipped_.push_back(k);
       is_skipped_[k] = 1;
