@@ -920,6 +920,10 @@ ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
   if (image.rows < 0 || image.cols < 0 || image.points.size() != cells || image.valid.size() != cells)
     throw std::invalid_argument("range image: points/valid sizes do not match rows x cols");
   ScanLines out;
+  // the line lists grow to about the sizes of this thread's previous call (no reallocation copies)
+  thread_local size_t previous_h = 0, previous_v = 0;
+  out.h_lines.reserve(previous_h + previous_h / 8);
+  out.v_lines.reserve(previous_v + previous_v / 8);
   out.h_label.assign(cells, -1);
   out.v_label.assign(cells, -1);
   // Work buffers kept per thread at their largest size: a full frame needs a few MB, which the allocator would
@@ -931,6 +935,8 @@ ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
   cell_thresholds(image, config, thresholds);
   fit_pass(image, thresholds, true, config.min_points_h, fitter, buf, &out.h_lines, &out.h_label);
   fit_pass(image, thresholds, false, config.min_points_v, fitter, buf, &out.v_lines, &out.v_label);
+  previous_h = out.h_lines.size();
+  previous_v = out.v_lines.size();
   return out;
 }
 
