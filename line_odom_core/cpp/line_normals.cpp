@@ -12,30 +12,50 @@ namespace {
 
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
 
-// Compressed lists of the crossings of each line.
+// The crossings of each line, packed contiguously in ascending crossing order (the robust mean reads them
+// three times).
+struct PackedCrossing {
+  Vec3 normal;
+  double weight;
+};
 struct CrossingLists {
   std::vector<int> offset;  // size lines + 1
-  std::vector<int> items;   // crossing indices
+  std::vector<PackedCrossing> items;
 };
 
-CrossingLists build_lists(const std::vector<LineCrossing>& crossings, size_t lines, bool horizontal) {
-  CrossingLists l;
+// Work buffers kept per thread between calls: a full-resolution frame needs a few MB, which freshly allocated
+// would cost page faults on every frame.
+struct NormalWorkspace {
+  CrossingLists lists;
+  std::vector<int> fill;
+  std::vector<LineFeature*> members;
+  std::vector<Vec3> normals, own;
+  std::vector<double> vx, vy, vz;
+};
+
+// Callers move it into a local for the call (the compiler keeps a local's buffers in registers) and back.
+NormalWorkspace& kept_workspace() {
+  thread_local NormalWorkspace kept;
+  return kept;
+}
+
+const CrossingLists& build_lists(const std::vector<LineCrossing>& crossings, size_t lines, bool horizontal,
+                                 NormalWorkspace& ws) {
+  CrossingLists& l = ws.lists;
   l.offset.assign(lines + 1, 0);
   for (const auto& x : crossings) ++l.offset[(horizontal ? x.h : x.v) + 1];
   for (size_t i = 0; i < lines; ++i) l.offset[i + 1] += l.offset[i];
   l.items.resize(crossings.size());
-  std::vector<int> fill(l.offset.begin(), l.offset.end() - 1);
-  for (size_t k = 0; k < crossings.size(); ++k) {
-    const auto& x = crossings[k];
-    l.items[fill[horizontal ? x.h : x.v]++] = static_cast<int>(k);
-  }
+  ws.fill.assign(l.offset.begin(), l.offset.end() - 1);
+  int* fill = ws.fill.data();
+  for (const auto& x : crossings) l.items[fill[horizontal ? x.h : x.v]++] = {x.normal, x.weight};
   return l;
 }
 
-void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLists& lists, const NormalConfig& cfg,
-                   std::vector<LineFeature>* lines) {
+void robust_normal(const CrossingLists& lists, const NormalConfig& cfg, std::vector<LineFeature>* lines) {
   const double cos_wide = std::cos(std::min(90.0, 2.0 * cfg.max_deviation_deg) * kDeg);
   const double cos_dev = std::cos(cfg.max_deviation_deg * kDeg);
+  const PackedCrossing* items = lists.items.data();
   for (size_t i = 0; i < lines->size(); ++i) {
     LineFeature& f = (*lines)[i];
     f.normal.setZero();
@@ -45,7 +65,7 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
     Vec3 mean = Vec3::Zero();
     double total = 0.0;
     for (int k = b; k < e; ++k) {
-      const LineCrossing& x = crossings[lists.items[k]];
+      const PackedCrossing& x = items[k];
       mean += x.weight * x.normal;
       total += x.weight;
     }
@@ -58,7 +78,7 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
       agree = 0;
       agree_weight = 0.0;
       for (int k = b; k < e; ++k) {
-        const LineCrossing& x = crossings[lists.items[k]];
+        const PackedCrossing& x = items[k];
         if (x.normal.dot(mean) >= cos_limit) {
           next += x.weight * x.normal;
           agree_weight += x.weight;
@@ -72,6 +92,28 @@ void robust_normal(const std::vector<LineCrossing>& crossings, const CrossingLis
     f.normal = mean;
     f.normal_support = agree;
   }
+}
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define LINE_NORMALS_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define LINE_NORMALS_CLONES
+#endif
+
+// Voters (structure of arrays) within the vote cone of c, sign-folded. Only a count above `beat` matters to
+// the caller: once the voters left cannot lift the count above it, the partial count (<= beat) is returned.
+LINE_NORMALS_CLONES int count_votes(const double* vx, const double* vy, const double* vz, int voters,
+                                    double cx, double cy, double cz, double cos_vote, int beat) {
+  constexpr int kBlock = 256;
+  int votes = 0;
+  for (int j0 = 0; j0 < voters; j0 += kBlock) {
+    if (votes + (voters - j0) <= beat) return votes;
+    const int j1 = std::min(voters, j0 + kBlock);
+    int block_votes = 0;
+    for (int j = j0; j < j1; ++j) block_votes += std::abs(vx[j] * cx + vy[j] * cy + vz[j] * cz) >= cos_vote;
+    votes += block_votes;
+  }
+  return votes;
 }
 
 // Principal axis of the normals within cos_limit of `axis` (sign-folded); `axis` itself when none.
@@ -157,14 +199,24 @@ std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLine
 
 void assign_line_normals(const std::vector<LineCrossing>& crossings, const NormalConfig& config,
                          ScanLines* lines) {
-  robust_normal(crossings, build_lists(crossings, lines->h_lines.size(), true), config, &lines->h_lines);
-  robust_normal(crossings, build_lists(crossings, lines->v_lines.size(), false), config, &lines->v_lines);
+  NormalWorkspace ws = std::move(kept_workspace());
+  robust_normal(build_lists(crossings, lines->h_lines.size(), true, ws), config, &lines->h_lines);
+  robust_normal(build_lists(crossings, lines->v_lines.size(), false, ws), config, &lines->v_lines);
+  kept_workspace() = std::move(ws);
 }
 
 std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector<LineFeature>* h_lines,
                                          std::vector<LineFeature>* v_lines) {
-  std::vector<LineFeature*> members;
-  std::vector<Vec3> normals;
+  NormalWorkspace ws = std::move(kept_workspace());
+  // every return hands the buffers back
+  struct KeepOnExit {
+    NormalWorkspace& ws;
+    ~KeepOnExit() { kept_workspace() = std::move(ws); }
+  } keep_on_exit{ws};
+  auto& members = ws.members;
+  auto& normals = ws.normals;
+  members.clear();
+  normals.clear();
   for (auto* list : {h_lines, v_lines})
     for (auto& f : *list) {
       f.cluster = -1;
@@ -187,19 +239,18 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     return true;
   };
   // The voters as structure of arrays: the vote count below is a vectorizable loop (same products and sums).
-  std::vector<double> vx, vy, vz;
+  auto& vx = ws.vx;
+  auto& vy = ws.vy;
+  auto& vz = ws.vz;
+  vx.clear();
+  vy.clear();
+  vz.clear();
   for (size_t j = 0; j < n; j += vote_stride) {
     vx.push_back(normals[j].x());
     vy.push_back(normals[j].y());
     vz.push_back(normals[j].z());
   }
   const int voter_count = static_cast<int>(vx.size());
-  auto count_votes = [&](const Vec3& c) {
-    const double cx = c.x(), cy = c.y(), cz = c.z();
-    int votes = 0;
-    for (int j = 0; j < voter_count; ++j) votes += std::abs(vx[j] * cx + vy[j] * cy + vz[j] * cz) >= cos_vote;
-    return votes;
-  };
   int found = 0;
   for (; found < 3; ++found) {
     int best_votes = 0;
@@ -207,7 +258,8 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     for (size_t i = 0; i < n; i += cand_stride) {
       const Vec3& c = normals[i];
       if (!separated(c, found)) continue;
-      const int votes = count_votes(c);
+      const int votes =
+          count_votes(vx.data(), vy.data(), vz.data(), voter_count, c.x(), c.y(), c.z(), cos_vote, best_votes);
       if (votes > best_votes) {
         best_votes = votes;
         best = c;
@@ -247,7 +299,8 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
   // Refine each direction on its own members near it, then reassign.
   const double cos_refine = std::cos(std::min(89.0, 2.0 * config.vote_angle_deg) * kDeg);
   for (int k = 0; k < found; ++k) {
-    std::vector<Vec3> own;
+    auto& own = ws.own;
+    own.clear();
     for (size_t i = 0; i < n; ++i)
       if (members[i]->cluster == k) own.push_back(normals[i]);
     dirs[k] = refine_axis(own, dirs[k], cos_refine);

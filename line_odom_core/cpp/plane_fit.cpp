@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -29,6 +30,81 @@ PlaneEstimate pca_plane(const PointMoments& m) {
   p.delta = -p.n.dot(m.mean());
   return p;
 }
+
+// The sums of PointMoments with the 6 distinct entries of sum p p^T: the full outer sum is symmetric bit for
+// bit (p_i p_j == p_j p_i, added in the same order), so moments() rebuilds PointMoments exactly.
+struct MomentSums {
+  int count = 0;
+  double sx = 0.0, sy = 0.0, sz = 0.0, xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
+
+  void add(const Vec3& p) {
+    const double x = p.x(), y = p.y(), z = p.z();
+    ++count;
+    sx += x, sy += y, sz += z;
+    xx += x * x, xy += x * y, xz += x * z, yy += y * y, yz += y * z, zz += z * z;
+  }
+  void add(const MomentSums& o) {
+    count += o.count;
+    sx += o.sx, sy += o.sy, sz += o.sz;
+    xx += o.xx, xy += o.xy, xz += o.xz, yy += o.yy, yz += o.yz, zz += o.zz;
+  }
+  PointMoments moments() const {
+    PointMoments m;
+    m.count = count;
+    m.sum = Vec3(sx, sy, sz);
+    m.outer << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+    return m;
+  }
+  Vec3 mean() const { return moments().mean(); }
+};
+
+PlaneEstimate pca_plane(const MomentSums& m) { return pca_plane(m.moments()); }
+
+// Moments of the cells of each line, in ascending cell order (as a row-major scan of the labels adds them):
+// each line scans only its own span [first, last] of its row (H) or column (V). Returns false, leaving `out`
+// unspecified, when some labelled cell lies outside its line's span (the caller then scans all cells).
+bool line_moments_by_span(const RangeImage& image, const std::vector<LineFeature>& lines,
+                          const std::vector<std::int32_t>& labels, bool horizontal, MomentSums* out) {
+  const int rows = image.rows, cols = image.cols;
+  const int cells = rows * cols;
+  const std::int32_t* label = labels.data();
+  long labelled = 0;
+  for (int c = 0; c < cells; ++c) labelled += label[c] >= 0;
+  long found = 0;
+  const int scans = horizontal ? rows : cols, along = horizontal ? cols : rows;
+  const int step = horizontal ? 1 : cols;
+  for (size_t i = 0; i < lines.size(); ++i) {
+    const LineFeature& f = lines[i];
+    if (f.scan_index < 0 || f.scan_index >= scans || f.first < 0 || f.last >= along || f.first > f.last)
+      return false;
+    MomentSums m;
+    const int id = static_cast<int>(i);
+    int cell = horizontal ? f.scan_index * cols + f.first : f.first * cols + f.scan_index;
+    for (int k = f.first; k <= f.last; ++k, cell += step)
+      if (label[cell] == id) m.add(image.points[cell]);
+    found += m.count;
+    out[i] = m;
+  }
+  return found == labelled;
+}
+
+// The line fields region growing tests, packed (the distance limits computed once per line).
+struct GrowLine {
+  Vec3 d, a, b;
+  double limit_a, limit_b;
+};
+
+// Work buffers of fit_planes, kept per thread between calls: a full-resolution frame needs a few MB, which
+// freshly allocated would cost page faults on every frame.
+struct PlaneFitWorkspace {
+  std::vector<Vec3> normal;
+  std::vector<std::uint8_t> known;
+  std::vector<MomentSums> moments, region_moments;
+  std::vector<int> offset, fill, adj, order, support, region, queue, region_lines, parent, big, plane_of_region;
+  std::vector<std::pair<int, int>> edges;
+  std::vector<GrowLine> grow;
+  std::vector<PlaneEstimate> est;
+};
 
 }  // namespace
 
@@ -60,26 +136,44 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   // One index space over all lines: H-lines first, then V-lines.
   const int nh = static_cast<int>(H.size()), nl = nh + static_cast<int>(V.size());
   auto line = [&](int i) -> LineFeature& { return i < nh ? H[i] : V[i - nh]; };
-  auto known = [&](int i) { return line(i).normal.squaredNorm() > 0.25; };
+  thread_local PlaneFitWorkspace kept;
+  PlaneFitWorkspace ws = std::move(kept);
+  // The line fields the crossing graph reads, packed.
+  auto& normal = ws.normal;
+  auto& known = ws.known;
+  normal.resize(nl);
+  known.resize(nl);
+  for (int i = 0; i < nl; ++i) {
+    normal[i] = line(i).normal;
+    known[i] = normal[i].squaredNorm() > 0.25;
+  }
 
   // Per-line moments (a crossing cell counts for both of its lines while growing).
-  std::vector<PointMoments> moments(nl);
+  auto& moments = ws.moments;
+  moments.resize(nl);
   const int cells = image.rows * image.cols;
-  for (int c = 0; c < cells; ++c) {
-    if (lines->h_label[c] >= 0) moments[lines->h_label[c]].add(image.points[c]);
-    if (lines->v_label[c] >= 0) moments[nh + lines->v_label[c]].add(image.points[c]);
+  if (!line_moments_by_span(image, H, lines->h_label, true, moments.data()) ||
+      !line_moments_by_span(image, V, lines->v_label, false, moments.data() + nh)) {
+    std::fill(moments.begin(), moments.end(), MomentSums{});
+    for (int c = 0; c < cells; ++c) {
+      if (lines->h_label[c] >= 0) moments[lines->h_label[c]].add(image.points[c]);
+      if (lines->v_label[c] >= 0) moments[nh + lines->v_label[c]].add(image.points[c]);
+    }
   }
 
   // Crossing graph between lines whose normals agree.
   const double cos_normal = std::cos(config.max_normal_angle_deg * kDeg);
   const double sin_normal = std::sin(config.max_normal_angle_deg * kDeg);
-  std::vector<int> offset(nl + 1, 0), adj;
-  std::vector<std::pair<int, int>> edges;
+  auto& offset = ws.offset;
+  auto& adj = ws.adj;
+  auto& edges = ws.edges;
+  offset.assign(nl + 1, 0);
+  edges.clear();
   edges.reserve(crossings.size());
   for (const auto& x : crossings) {
     const int a = x.h, b = nh + x.v;
-    if (!known(a) || !known(b)) continue;
-    if (std::abs(line(a).normal.dot(line(b).normal)) < cos_normal) continue;
+    if (!known[a] || !known[b]) continue;
+    if (std::abs(normal[a].dot(normal[b])) < cos_normal) continue;
     edges.emplace_back(a, b);
     ++offset[a + 1];
     ++offset[b + 1];
@@ -87,55 +181,67 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   for (int i = 0; i < nl; ++i) offset[i + 1] += offset[i];
   adj.resize(offset[nl]);
   {
-    std::vector<int> fill(offset.begin(), offset.end() - 1);
+    auto& fill = ws.fill;
+    fill.assign(offset.begin(), offset.end() - 1);
     for (const auto& [a, b] : edges) {
       adj[fill[a]++] = b;
       adj[fill[b]++] = a;
     }
   }
 
-  std::vector<int> order;
+  auto& order = ws.order;
+  order.clear();
   for (int i = 0; i < nl; ++i)
-    if (known(i) && offset[i + 1] > offset[i]) order.push_back(i);
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return line(a).support > line(b).support; });
+    if (known[i] && offset[i + 1] > offset[i]) order.push_back(i);
+  {
+    auto& support = ws.support;
+    support.resize(nl);
+    for (int i : order) support[i] = line(i).support;
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return support[a] > support[b]; });
+  }
 
-  std::vector<int> region(nl, -1);
-  std::vector<int> queue, members;
-  struct Region {
-    std::vector<int> lines;
-  };
-  std::vector<Region> regions;
+  auto& grow = ws.grow;
+  grow.resize(nl);
+  for (int i = 0; i < nl; ++i)
+    if (known[i] && offset[i + 1] > offset[i]) {
+      const LineFeature& f = line(i);
+      grow[i] = {f.line.d, f.segment.a, f.segment.b,
+                 config.max_distance * line_config.threshold_scale(f.segment.a.norm()),
+                 config.max_distance * line_config.threshold_scale(f.segment.b.norm())};
+    }
+
+  auto& region = ws.region;
+  auto& queue = ws.queue;
+  auto& region_lines = ws.region_lines;  // lines per region
+  region.assign(nl, -1);
+  region_lines.clear();
   for (int seed : order) {
     if (region[seed] >= 0) continue;
-    const int rid = static_cast<int>(regions.size());
-    regions.emplace_back();
-    members.clear();
+    const int rid = static_cast<int>(region_lines.size());
     queue.assign(1, seed);
     region[seed] = rid;
-    PointMoments acc = moments[seed];
-    Vec3 normal_sum = line(seed).normal;
+    MomentSums acc = moments[seed];
+    Vec3 normal_sum = normal[seed];
     PlaneEstimate plane;
-    plane.n = line(seed).normal;
+    plane.n = normal[seed];
     plane.delta = -plane.n.dot(acc.mean());
     int fitted_at = acc.count;
     for (size_t qi = 0; qi < queue.size(); ++qi) {
       const int cur = queue[qi];
-      members.push_back(cur);
       for (int k = offset[cur]; k < offset[cur + 1]; ++k) {
         const int nb = adj[k];
         if (region[nb] >= 0) continue;
-        const LineFeature& f = line(nb);
-        if (std::abs(f.normal.dot(plane.n)) < cos_normal) continue;
-        if (std::abs(f.line.d.dot(plane.n)) > sin_normal) continue;
-        const double da = std::abs(plane.n.dot(f.segment.a) + plane.delta);
-        const double db = std::abs(plane.n.dot(f.segment.b) + plane.delta);
-        if (da > config.max_distance * line_config.threshold_scale(f.segment.a.norm()) ||
-            db > config.max_distance * line_config.threshold_scale(f.segment.b.norm()))
-          continue;
+        const Vec3& fn = normal[nb];
+        if (std::abs(fn.dot(plane.n)) < cos_normal) continue;
+        const GrowLine& g = grow[nb];
+        if (std::abs(g.d.dot(plane.n)) > sin_normal) continue;
+        const double da = std::abs(plane.n.dot(g.a) + plane.delta);
+        const double db = std::abs(plane.n.dot(g.b) + plane.delta);
+        if (da > g.limit_a || db > g.limit_b) continue;
         region[nb] = rid;
         queue.push_back(nb);
         acc.add(moments[nb]);
-        normal_sum += f.normal.dot(normal_sum) >= 0.0 ? f.normal : Vec3(-f.normal);
+        normal_sum += fn.dot(normal_sum) >= 0.0 ? fn : Vec3(-fn);
         if (acc.count >= fitted_at + fitted_at / 5 + 1) {
           const PlaneEstimate p = pca_plane(acc);
           // Least squares once the region spans two directions; the mean line normal before that.
@@ -149,12 +255,13 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
         }
       }
     }
-    regions[rid].lines = members;
+    region_lines.push_back(static_cast<int>(queue.size()));
   }
 
   // Final fit of every region on its points, each cell counted once.
-  const int nr = static_cast<int>(regions.size());
-  std::vector<PointMoments> region_moments(nr);
+  const int nr = static_cast<int>(region_lines.size());
+  auto& region_moments = ws.region_moments;
+  region_moments.assign(nr, MomentSums{});
   for (int c = 0; c < cells; ++c) {
     const int h = lines->h_label[c], v = lines->v_label[c];
     int r = h >= 0 ? region[h] : -1;
@@ -163,15 +270,18 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   }
   // Regions on one plane that the crossing graph did not connect (split by an occluder, a gap or the sensor's
   // blind spot) are merged when their planes agree and the union still fits.
-  std::vector<int> parent(nr);
+  auto& parent = ws.parent;
+  parent.resize(nr);
   std::iota(parent.begin(), parent.end(), 0);
   {
-    std::vector<int> big;
+    auto& big = ws.big;
+    big.clear();
     for (int r = 0; r < nr; ++r)
-      if (region_moments[r].count >= 3 && regions[r].lines.size() >= 2) big.push_back(r);
+      if (region_moments[r].count >= 3 && region_lines[r] >= 2) big.push_back(r);
     std::stable_sort(big.begin(), big.end(),
                      [&](int a, int b) { return region_moments[a].count > region_moments[b].count; });
-    std::vector<PlaneEstimate> est(nr);
+    auto& est = ws.est;
+    est.assign(nr, PlaneEstimate{});
     for (int r : big) est[r] = pca_plane(region_moments[r]);
     auto within = [&](const PlaneEstimate& p, const Vec3& x) {
       return std::abs(p.n.dot(x) + p.delta) <= config.max_distance * line_config.threshold_scale(x.norm());
@@ -186,7 +296,7 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
         const PlaneEstimate& pb = est[b];
         if (std::abs(pa.n.dot(pb.n)) < cos_normal) continue;
         if (!within(pa, region_moments[b].mean()) || !within(pb, region_moments[a].mean())) continue;
-        PointMoments u = region_moments[a];
+        MomentSums u = region_moments[a];
         u.add(region_moments[b]);
         const PlaneEstimate pu = pca_plane(u);
         // the union must fit about as well as its parts (not two parallel surfaces a step apart)
@@ -194,7 +304,7 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
         if (!(std::sqrt(pu.lambda_min) <= std::min(config.max_rms, 1.25 * parts_rms + 0.005))) continue;
         region_moments[a] = u;
         est[a] = pu;
-        regions[a].lines.insert(regions[a].lines.end(), regions[b].lines.begin(), regions[b].lines.end());
+        region_lines[a] += region_lines[b];
         parent[b] = a;
       }
     }
@@ -205,8 +315,8 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   std::vector<std::pair<PlaneFeature, int>> accepted;
   for (int r = 0; r < nr; ++r) {
     if (parent[r] != r) continue;
-    const PointMoments& m = region_moments[r];
-    if (static_cast<int>(regions[r].lines.size()) < config.min_lines || m.count < config.min_points) continue;
+    const PointMoments m = region_moments[r].moments();
+    if (region_lines[r] < config.min_lines || m.count < config.min_points) continue;
     const PlaneEstimate p = pca_plane(m);
     const double rms = std::sqrt(p.lambda_min);
     const double extent = std::sqrt(12.0 * p.lambda_mid);
@@ -223,13 +333,15 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   std::stable_sort(accepted.begin(), accepted.end(),
                    [](const auto& a, const auto& b) { return a.first.support > b.first.support; });
   if (static_cast<int>(accepted.size()) > config.max_planes) accepted.resize(config.max_planes);
-  std::vector<int> plane_of_region(nr, -1);
+  auto& plane_of_region = ws.plane_of_region;
+  plane_of_region.assign(nr, -1);
   for (size_t i = 0; i < accepted.size(); ++i) {
     planes.push_back(accepted[i].first);
     plane_of_region[accepted[i].second] = static_cast<int>(i);
   }
   for (int i = 0; i < nl; ++i)
     if (region[i] >= 0) line(i).plane = plane_of_region[region[i]];
+  kept = std::move(ws);
   return planes;
 }
 
