@@ -418,7 +418,9 @@ class ScanLineFitter {
   Vec3 chord_direction(const ScanBuffer& buf, int a, int b) const {
     const Vec3 d = buf.p[b] - buf.p[a];
     const double n = std::sqrt(squared_norm(d));
-    return n > 1e-12 ? Vec3(d / n) : Vec3::UnitX();
+    if (!(n > 1e-12)) return Vec3::UnitX();
+    const F4 unit = F4{d.x(), d.y(), d.z(), n} / n;  // the three quotients in one vector division
+    return Vec3(unit[0], unit[1], unit[2]);
   }
 
   // Adds points [a, b] (skipping the stray points between the line and a) when the least-squares line of the
@@ -875,7 +877,8 @@ inline __attribute__((always_inline)) LineLeastSquares finish_upper(const LinePr
     return f;  // all points equal
   }
   const double norm = std::sqrt(norm2);
-  dx /= norm, dy /= norm, dz /= norm;
+  const F4 unit = F4{dx, dy, dz, norm} / norm;  // the three quotients in one vector division
+  dx = unit[0], dy = unit[1], dz = unit[2];
   f.direction = Vec3(dx, dy, dz);
   const double cx = xx * dx + xy * dy + xz * dz;
   const double cy = xy * dx + yy * dy + yz * dz;
