@@ -141,6 +141,8 @@ inline __attribute__((always_inline)) F4 load4(const double* p) {
   return v;
 }
 
+inline __attribute__((always_inline)) bool any(const I4& m) { return (m[0] | m[1] | m[2] | m[3]) != 0; }
+
 // Index (1..n) of the largest ratio above 1 of the squared distances of points 1..n of X/Y/Z to the chord from
 // point 0 to point n+1 over their squared thresholds (times W), -1 if none; ties: the first. The ratios are >= +0
 // (squares times positive factors; a NaN from absurd scales counts by its bits), so they order as their bit
@@ -181,6 +183,10 @@ inline __attribute__((always_inline)) int farthest_from_chord(const double* __re
       best = more ? bits : best;
       best_at = more ? index : best_at;
     }
+    std::int64_t one;
+    const double one_value = 1.0;
+    std::memcpy(&one, &one_value, sizeof one);
+    if (!any(best > one)) return -1;  // no ratio above 1: no split (most calls)
     // across the lanes, without branches: the largest bits, at the smallest index among the lanes holding them
     for (const I4 swap : {I4{2, 3, 0, 1}, I4{1, 0, 3, 2}}) {
       const I4 other = __builtin_shuffle(best, swap), other_at = __builtin_shuffle(best_at, swap);
@@ -197,8 +203,6 @@ inline __attribute__((always_inline)) int farthest_from_chord(const double* __re
 }
 
 constexpr double kMargin = 1e-9;  // relative margin of the squared decision tests (see breaks_between)
-
-inline __attribute__((always_inline)) bool any(const I4& m) { return (m[0] | m[1] | m[2] | m[3]) != 0; }
 
 // The clear cases of try_merge's test of points k..k+len-1 (len <= 4) against the prefit line (centroid c,
 // unnormalized direction u): e = |(p - c) x u|^2 / tau^2 against |u|^2 (1 +- kMargin), the same IEEE operations as
