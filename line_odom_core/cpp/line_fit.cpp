@@ -249,6 +249,21 @@ void break_codes(const double* __restrict X, const double* __restrict Y, const d
   }
 }
 
+// sqrt(n / (n - 2)), the factor of the unbiased rms of a line fitted to n points, from a table for small n (the same
+// expression, evaluated once at load time): no division and square root on the path of every line's end test.
+struct UnbiasedFactors {
+  static constexpr int kSize = 256;
+  double value[kSize];
+  UnbiasedFactors() : value() {
+    for (int n = 3; n < kSize; ++n) value[n] = std::sqrt(n / (n - 2.0));
+  }
+};
+const UnbiasedFactors kUnbiased;
+
+inline double unbiased_factor(int n) {
+  return n >= 3 && n < UnbiasedFactors::kSize ? kUnbiased.value[n] : std::sqrt(n / (n - 2.0));
+}
+
 class ScanLineFitter {
   static constexpr int kEndChecks = 4;
 
@@ -567,7 +582,7 @@ class ScanLineFitter {
           if (skipped_[i] >= a && skipped_[i] <= b) remove_point(&core, buf.p[skipped_[i]]);
         judge = fit_line(core, c.fit.direction);
         // a fit to n points absorbs 4 of their 2n residual components: unbiased rms
-        limit_rms = judge.rms * std::sqrt(core.count / (core.count - 2.0));
+        limit_rms = judge.rms * unbiased_factor(core.count);
       }
       const bool short_line = c.moments.count < 12;
       // residual > max(limit, floor), the floor (a sqrt) computed only when the residual exceeds the limit
@@ -581,7 +596,7 @@ class ScanLineFitter {
           const LinePrefit pre = prefit_line(rest, c.fit.direction);
           if (pre.usable() && clearly_kept(buf, k, pre, rest.count)) return false;
           const LineLeastSquares f = finish_line(pre, rest, c.fit.direction);
-          const double rms = f.rms * std::sqrt(rest.count / (rest.count - 2.0));
+          const double rms = f.rms * unbiased_factor(rest.count);
           return excess2(f, buf, k) > 1.0 || beyond(residual(f, buf.p[k]), cfg_.trim_sigmas * rms, k);
         }
         if (excess2(judge, buf, k) > 1.0) return true;
