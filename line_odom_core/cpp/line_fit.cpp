@@ -71,7 +71,7 @@ inline __attribute__((always_inline)) LineLeastSquares finish_line(const LinePre
 // Points of one scan line in scan order, with their positions along it, their split thresholds and the
 // prefix sums of their moments (the moments of any stretch in O(1)).
 struct ScanBuffer {
-  std::vector<int> cell;
+  int cell0 = 0, cell_step = 1;         // range-image cell of position k along the scan line: cell0 + k cell_step
   std::vector<int> pos;
   std::vector<Vec3> p;
   std::vector<double> x, y, z;        // p as structure of arrays
@@ -669,7 +669,7 @@ class ScanLineFitter {
     f.last = buf.pos[c.last];
     const auto id = static_cast<std::int32_t>(out->size());
     for (int k = c.first; k <= c.last; ++k)
-      if (!is_skipped_[k]) (*labels)[buf.cell[k]] = id;
+      if (!is_skipped_[k]) (*labels)[buf.cell0 + buf.pos[k] * buf.cell_step] = id;
     out->push_back(f);
   }
 
@@ -735,8 +735,7 @@ LINE_FIT_CLONES void cell_thresholds(const RangeImage& img, const LineFitConfig&
 
 void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizontal, int index, ScanBuffer* buf) {
   const int n = horizontal ? img.cols : img.rows;
-  if (static_cast<int>(buf->cell.size()) < n) {  // grow once; sizes stay at the maximum, `count` is the length
-    buf->cell.resize(n);
+  if (static_cast<int>(buf->pos.size()) < n) {  // grow once; sizes stay at the maximum, `count` is the length
     buf->pos.resize(n);
     buf->p.resize(n);
     buf->x.resize(n + kPad);
@@ -748,11 +747,12 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   }
   const int cell0 = horizontal ? index * img.cols : index;
   const int step = horizontal ? 1 : img.cols;
+  buf->cell0 = cell0;
+  buf->cell_step = step;
   // The valid points, compacted.
   const std::uint8_t* valid = img.valid.data();
   const Vec3* points = img.points.data();
   const double* cell_tau = th.tau.data();
-  int* out_cell = buf->cell.data();
   int* out_pos = buf->pos.data();
   Vec3* out_p = buf->p.data();
   double* out_x = buf->x.data();
@@ -764,7 +764,6 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   for (int k = 0, cell = cell0; k < n; ++k, cell += step) {
     if (!valid[cell]) continue;
     const double x = points[cell].x(), y = points[cell].y(), z = points[cell].z();
-    out_cell[m] = cell;
     out_pos[m] = k;
     out_p[m] = Vec3(x, y, z);
     out_x[m] = x;
