@@ -586,7 +586,11 @@ class ScanLineFitter {
       }
       const bool short_line = c.moments.count < 12;
       // residual > max(limit, floor), the floor (a sqrt) computed only when the residual exceeds the limit
-      auto beyond = [&](double r, double limit, int k) {
+      // (the square root of the squared distance d2 taken only when the point is not clearly within the limit: the
+      // squares decide by kMargin, far beyond the rounding of either form)
+      auto beyond = [&](double d2, double limit, int k) {
+        if (d2 < limit * limit * (1.0 - kMargin)) return false;
+        const double r = std::sqrt(d2);
         return r > limit && r > 0.5 * cfg_.max_rms * cfg_.threshold_scale(std::sqrt(squared_norm(buf.p[k])));
       };
       auto off = [&](int k) {
@@ -597,10 +601,10 @@ class ScanLineFitter {
           if (pre.usable() && clearly_kept(buf, k, pre, rest.count)) return false;
           const LineLeastSquares f = finish_line(pre, rest, c.fit.direction);
           const double rms = f.rms * unbiased_factor(rest.count);
-          return excess2(f, buf, k) > 1.0 || beyond(residual(f, buf.p[k]), cfg_.trim_sigmas * rms, k);
+          return excess2(f, buf, k) > 1.0 || beyond(distance2(buf.p[k], f.centroid, f.direction), cfg_.trim_sigmas * rms, k);
         }
         if (excess2(judge, buf, k) > 1.0) return true;
-        return beyond(residual(judge, buf.p[k]), cfg_.trim_sigmas * limit_rms, k);
+        return beyond(distance2(buf.p[k], judge.centroid, judge.direction), cfg_.trim_sigmas * limit_rms, k);
       };
       int lo = c.first, hi = c.last;
       while (hi > lo && off(lo)) lo = next_inlier(lo, 1);
