@@ -30,6 +30,7 @@ struct NormalWorkspace {
   std::vector<int> fill;
   std::vector<LineFeature*> members;
   std::vector<Vec3> normals, own;
+  std::vector<std::int8_t> cluster;
   std::vector<double> vx, vy, vz;
 };
 
@@ -281,6 +282,9 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
   if (found <= 2) dirs[2] = dirs[0].cross(dirs[1]).normalized();
 
   const double cos_member = std::cos(config.max_cluster_angle_deg * kDeg);
+  // Each member's cluster, also kept here: the refinement below reads it without visiting the lines.
+  auto& cluster = ws.cluster;
+  cluster.resize(n);
   auto assign = [&]() {
     for (size_t i = 0; i < n; ++i) {
       int best = -1;
@@ -293,6 +297,7 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
         }
       }
       members[i]->cluster = best;
+      cluster[i] = static_cast<std::int8_t>(best);
     }
   };
   assign();
@@ -302,7 +307,7 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     auto& own = ws.own;
     own.clear();
     for (size_t i = 0; i < n; ++i)
-      if (members[i]->cluster == k) own.push_back(normals[i]);
+      if (cluster[i] == k) own.push_back(normals[i]);
     dirs[k] = refine_axis(own, dirs[k], cos_refine);
   }
   for (auto& d : dirs) d = canonical_sign(d);

@@ -88,6 +88,31 @@ bool line_moments_by_span(const RangeImage& image, const std::vector<LineFeature
   return found == labelled;
 }
 
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define PLANE_FIT_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define PLANE_FIT_CLONES
+#endif
+
+// The first j in [from, count) with alive[j] and |a . n_j| not below cos_limit (n_j = (nx, ny, nz)[j]; the
+// products summed in Eigen's order for a 3-vector dot), else count. Blocks of 16 are tested without branches.
+PLANE_FIT_CLONES size_t next_parallel(const double* nx, const double* ny, const double* nz,
+                                      const std::uint8_t* alive, size_t from, size_t count, double ax, double ay,
+                                      double az, double cos_limit) {
+  constexpr size_t kBlock = 16;
+  for (size_t j0 = from; j0 < count; j0 += kBlock) {
+    const size_t m = std::min(kBlock, count - j0);
+    unsigned hits = 0;
+    for (size_t k = 0; k < m; ++k) {
+      const size_t j = j0 + k;
+      const bool near = !(std::abs(ax * nx[j] + ay * ny[j] + az * nz[j]) < cos_limit);
+      hits |= static_cast<unsigned>(near & (alive[j] != 0)) << k;
+    }
+    if (hits) return j0 + static_cast<size_t>(__builtin_ctz(hits));
+  }
+  return count;
+}
+
 // The line fields region growing tests, packed (the distance limits computed once per line).
 struct GrowLine {
   Vec3 d, a, b;
@@ -100,10 +125,12 @@ struct PlaneFitWorkspace {
   std::vector<Vec3> normal;
   std::vector<std::uint8_t> known;
   std::vector<MomentSums> moments, region_moments;
-  std::vector<int> offset, fill, adj, order, support, region, queue, region_lines, parent, big, plane_of_region;
+  std::vector<int> offset, fill, adj, order, sorted, support, region, queue, region_lines, parent, big, plane_of_region;
   std::vector<std::pair<int, int>> edges;
   std::vector<GrowLine> grow;
   std::vector<PlaneEstimate> est;
+  std::vector<double> big_nx, big_ny, big_nz;
+  std::vector<std::uint8_t> big_alive;
 };
 
 }  // namespace
@@ -194,10 +221,27 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   for (int i = 0; i < nl; ++i)
     if (known[i] && offset[i + 1] > offset[i]) order.push_back(i);
   {
+    // Stable sort by support, descending: a counting sort (supports are point counts), ties in index order.
     auto& support = ws.support;
-    support.resize(nl);
-    for (int i : order) support[i] = line(i).support;
-    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return support[a] > support[b]; });
+    support.resize(order.size());
+    int min_support = 0, max_support = 0;
+    for (size_t k = 0; k < order.size(); ++k) {
+      support[k] = line(order[k]).support;
+      min_support = std::min(min_support, support[k]);
+      max_support = std::max(max_support, support[k]);
+    }
+    if (min_support < 0 || max_support > (1 << 22)) {
+      std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return line(a).support > line(b).support; });
+    } else {
+    auto& start = ws.fill;
+    start.assign(static_cast<size_t>(max_support) + 2, 0);
+    for (int s : support) ++start[max_support - s + 1];
+    for (int b = 0; b <= max_support; ++b) start[b + 1] += start[b];
+    auto& sorted = ws.sorted;
+    sorted.resize(order.size());
+    for (size_t k = 0; k < order.size(); ++k) sorted[start[max_support - support[k]]++] = order[k];
+    order.swap(sorted);
+    }
   }
 
   auto& grow = ws.grow;
@@ -286,15 +330,31 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
     auto within = [&](const PlaneEstimate& p, const Vec3& x) {
       return std::abs(p.n.dot(x) + p.delta) <= config.max_distance * line_config.threshold_scale(x.norm());
     };
-    for (size_t i = 0; i < big.size(); ++i) {
+    // The normals of the big regions in their order, and whether each is still a root, for the pair search.
+    const size_t nb_big = big.size();
+    auto& bx = ws.big_nx;
+    auto& by = ws.big_ny;
+    auto& bz = ws.big_nz;
+    auto& alive = ws.big_alive;
+    bx.resize(nb_big);
+    by.resize(nb_big);
+    bz.resize(nb_big);
+    alive.assign(nb_big, 1);
+    for (size_t j = 0; j < nb_big; ++j) {
+      const Vec3& n = est[big[j]].n;
+      bx[j] = n.x(), by[j] = n.y(), bz[j] = n.z();
+    }
+    for (size_t i = 0; i < nb_big; ++i) {
       const int a = big[i];
-      if (parent[a] != a) continue;
-      for (size_t j = i + 1; j < big.size(); ++j) {
+      if (!alive[i]) continue;
+      for (size_t j = i + 1; j < nb_big; ++j) {
+        const Vec3& na = est[a].n;
+        j = next_parallel(bx.data(), by.data(), bz.data(), alive.data(), j, nb_big, na.x(), na.y(), na.z(),
+                          cos_normal);
+        if (j >= nb_big) break;
         const int b = big[j];
-        if (parent[b] != b) continue;
         const PlaneEstimate& pa = est[a];
         const PlaneEstimate& pb = est[b];
-        if (std::abs(pa.n.dot(pb.n)) < cos_normal) continue;
         if (!within(pa, region_moments[b].mean()) || !within(pb, region_moments[a].mean())) continue;
         MomentSums u = region_moments[a];
         u.add(region_moments[b]);
@@ -306,6 +366,7 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
         est[a] = pu;
         region_lines[a] += region_lines[b];
         parent[b] = a;
+        alive[j] = 0;
       }
     }
     for (int i = 0; i < nl; ++i)
