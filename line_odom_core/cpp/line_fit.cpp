@@ -188,8 +188,9 @@ inline __attribute__((always_inline)) int farthest_from_chord(const double* __re
     std::memcpy(&one, &one_value, sizeof one);
     if (!any(best > one)) return -1;  // no ratio above 1: no split (most calls)
     // across the lanes, without branches: the largest bits, at the smallest index among the lanes holding them
-    for (const I4 swap : {I4{2, 3, 0, 1}, I4{1, 0, 3, 2}}) {
-      const I4 other = __builtin_shuffle(best, swap), other_at = __builtin_shuffle(best_at, swap);
+    for (const int stride : {2, 1}) {  // lanes exchanged with the lane `stride` away: (2 3 0 1), then (1 0 3 2)
+      const I4 other = {best[stride], best[1 ^ stride], best[2 ^ stride], best[3 ^ stride]};
+      const I4 other_at = {best_at[stride], best_at[1 ^ stride], best_at[2 ^ stride], best_at[3 ^ stride]};
       const I4 take = (other > best) | ((other == best) & (other_at < best_at));
       best = take ? other : best;
       best_at = take ? other_at : best_at;
