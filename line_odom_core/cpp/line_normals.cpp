@@ -63,18 +63,31 @@ void robust_normal(const CrossingLists& lists, const NormalConfig& cfg, std::vec
     f.normal_support = 0;
     const int b = lists.offset[i], e = lists.offset[i + 1];
     if (e == b) continue;
-    Vec3 mean = Vec3::Zero();
+    Vec3 sum = Vec3::Zero();
     double total = 0.0;
     for (int k = b; k < e; ++k) {
       const PackedCrossing& x = items[k];
-      mean += x.weight * x.normal;
+      sum += x.weight * x.normal;
       total += x.weight;
     }
-    if (mean.norm() < 1e-9) continue;
-    mean.normalize();
+    // v.normalized() is v / v.norm() for v != 0 (the same square root and divisions).
+    const double sum_norm = sum.norm();
+    if (sum_norm < 1e-9) continue;
+    const Vec3 sum_mean = sum / sum_norm;
+    Vec3 mean = sum_mean;
     int agree = 0;
     double agree_weight = 0.0;
     for (double cos_limit : {cos_wide, cos_dev}) {
+      // When every crossing agrees, the sums over the agreeing ones are the first pass's sums (same terms, same
+      // order), and so is the new mean: only the test is needed.
+      bool all = true;
+      for (int k = b; k < e && all; ++k) all = items[k].normal.dot(mean) >= cos_limit;
+      if (all) {
+        agree = e - b;
+        agree_weight = total;
+        mean = sum_mean;
+        continue;
+      }
       Vec3 next = Vec3::Zero();
       agree = 0;
       agree_weight = 0.0;
@@ -86,8 +99,9 @@ void robust_normal(const CrossingLists& lists, const NormalConfig& cfg, std::vec
           ++agree;
         }
       }
-      if (agree == 0 || next.norm() < 1e-9) break;
-      mean = next.normalized();
+      const double next_norm = next.norm();
+      if (agree == 0 || next_norm < 1e-9) break;
+      mean = next / next_norm;
     }
     if (agree < cfg.min_crossings || agree_weight < cfg.min_agreement * total) continue;
     f.normal = mean;
@@ -119,14 +133,18 @@ LINE_NORMALS_CLONES int count_votes(const double* vx, const double* vy, const do
 
 // Principal axis of the normals within cos_limit of `axis` (sign-folded); `axis` itself when none.
 Vec3 refine_axis(const std::vector<Vec3>& normals, const Vec3& axis, double cos_limit) {
-  Mat3 scatter = Mat3::Zero();
+  // The 6 distinct entries of sum v v^T (the full sum is symmetric bit for bit: v_i v_j == v_j v_i).
+  double xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
   int n = 0;
   for (const auto& v : normals)
     if (std::abs(v.dot(axis)) >= cos_limit) {
-      scatter.noalias() += v * v.transpose();
+      const double x = v.x(), y = v.y(), z = v.z();
+      xx += x * x, xy += x * y, xz += x * z, yy += y * y, yz += y * z, zz += z * z;
       ++n;
     }
   if (n == 0) return axis;
+  Mat3 scatter;
+  scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
   Eigen::SelfAdjointEigenSolver<Mat3> eig;
   eig.computeDirect(scatter);
   Vec3 out = eig.eigenvectors().col(2).normalized();

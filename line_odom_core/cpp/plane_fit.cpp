@@ -306,11 +306,25 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   const int nr = static_cast<int>(region_lines.size());
   auto& region_moments = ws.region_moments;
   region_moments.assign(nr, MomentSums{});
-  for (int c = 0; c < cells; ++c) {
-    const int h = lines->h_label[c], v = lines->v_label[c];
-    int r = h >= 0 ? region[h] : -1;
-    if (r < 0 && v >= 0) r = region[nh + v];
-    if (r >= 0) region_moments[r].add(image.points[c]);
+  {
+    // Runs of cells of one region are summed in a local copy (the same running sums, kept in registers).
+    const std::int32_t* h_label = lines->h_label.data();
+    const std::int32_t* v_label = lines->v_label.data();
+    int run = -1;
+    MomentSums sums;
+    for (int c = 0; c < cells; ++c) {
+      const int h = h_label[c], v = v_label[c];
+      int r = h >= 0 ? region[h] : -1;
+      if (r < 0 && v >= 0) r = region[nh + v];
+      if (r < 0) continue;
+      if (r != run) {
+        if (run >= 0) region_moments[run] = sums;
+        run = r;
+        sums = region_moments[r];
+      }
+      sums.add(image.points[c]);
+    }
+    if (run >= 0) region_moments[run] = sums;
   }
   // Regions on one plane that the crossing graph did not connect (split by an occluder, a gap or the sensor's
   // blind spot) are merged when their planes agree and the union still fits.
