@@ -31,6 +31,7 @@ struct NormalWorkspace {
   std::vector<LineFeature*> members;
   std::vector<Vec3> normals, own;
   std::vector<std::int8_t> cluster;
+  std::vector<int> votes;
   std::vector<double> vx, vy, vz;
 };
 
@@ -115,19 +116,11 @@ void robust_normal(const CrossingLists& lists, const NormalConfig& cfg, std::vec
 #define LINE_NORMALS_CLONES
 #endif
 
-// Voters (structure of arrays) within the vote cone of c, sign-folded. Only a count above `beat` matters to
-// the caller: once the voters left cannot lift the count above it, the partial count (<= beat) is returned.
+// Voters (structure of arrays) within the vote cone of c, sign-folded.
 LINE_NORMALS_CLONES int count_votes(const double* vx, const double* vy, const double* vz, int voters,
-                                    double cx, double cy, double cz, double cos_vote, int beat) {
-  constexpr int kBlock = 256;
+                                    double cx, double cy, double cz, double cos_vote) {
   int votes = 0;
-  for (int j0 = 0; j0 < voters; j0 += kBlock) {
-    if (votes + (voters - j0) <= beat) return votes;
-    const int j1 = std::min(voters, j0 + kBlock);
-    int block_votes = 0;
-    for (int j = j0; j < j1; ++j) block_votes += std::abs(vx[j] * cx + vy[j] * cy + vz[j] * cz) >= cos_vote;
-    votes += block_votes;
-  }
+  for (int j = 0; j < voters; ++j) votes += std::abs(vx[j] * cx + vy[j] * cy + vz[j] * cz) >= cos_vote;
   return votes;
 }
 
@@ -270,6 +263,9 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     vz.push_back(normals[j].z());
   }
   const int voter_count = static_cast<int>(vx.size());
+  // A candidate's votes do not depend on the round: counted once, when first needed.
+  auto& votes_of = ws.votes;
+  votes_of.assign((n + cand_stride - 1) / cand_stride, -1);
   int found = 0;
   for (; found < 3; ++found) {
     int best_votes = 0;
@@ -277,8 +273,8 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     for (size_t i = 0; i < n; i += cand_stride) {
       const Vec3& c = normals[i];
       if (!separated(c, found)) continue;
-      const int votes =
-          count_votes(vx.data(), vy.data(), vz.data(), voter_count, c.x(), c.y(), c.z(), cos_vote, best_votes);
+      int& votes = votes_of[i / cand_stride];
+      if (votes < 0) votes = count_votes(vx.data(), vy.data(), vz.data(), voter_count, c.x(), c.y(), c.z(), cos_vote);
       if (votes > best_votes) {
         best_votes = votes;
         best = c;
