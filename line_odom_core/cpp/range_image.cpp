@@ -345,28 +345,27 @@ __attribute__((target("avx2"))) inline void load_points4<4, float>(const float* 
   *y = _mm256_cvtps_pd(r1);
   *z = _mm256_cvtps_pd(r2);
 }
-// v0 = x0 y0 z0 x1, v1 = y1 z1 x2 y2, v2 = z2 x3 y3 z3
-template <>
-__attribute__((target("avx2"))) inline void load_points4<3, float>(const float* a, size_t, __m256d* x, __m256d* y,
-                                                                   __m256d* z) {
-  const __m128 v0 = _mm_loadu_ps(a), v1 = _mm_loadu_ps(a + 4), v2 = _mm_loadu_ps(a + 8);
-  const __m128 bx = _mm_blend_ps(_mm_blend_ps(v0, v1, 0x4), v2, 0x2);  // x0 x3 x2 x1
-  const __m128 by = _mm_blend_ps(_mm_blend_ps(v0, v1, 0x9), v2, 0x4);  // y1 y0 y3 y2
-  const __m128 bz = _mm_blend_ps(_mm_blend_ps(v0, v1, 0x2), v2, 0x9);  // z2 z1 z0 z3
-  *x = _mm256_cvtps_pd(_mm_shuffle_ps(bx, bx, _MM_SHUFFLE(1, 2, 3, 0)));
-  *y = _mm256_cvtps_pd(_mm_shuffle_ps(by, by, _MM_SHUFFLE(2, 3, 0, 1)));
-  *z = _mm256_cvtps_pd(_mm_shuffle_ps(bz, bz, _MM_SHUFFLE(3, 0, 1, 2)));
-}
-template <>
-__attribute__((target("avx2"))) inline void load_points4<3, double>(const double* a, size_t, __m256d* x, __m256d* y,
-                                                                    __m256d* z) {
-  const __m256d v0 = _mm256_loadu_pd(a), v1 = _mm256_loadu_pd(a + 4), v2 = _mm256_loadu_pd(a + 8);
+// Four packed xyz points v0 = x0 y0 z0 x1, v1 = y1 z1 x2 y2, v2 = z2 x3 y3 z3 apart into x, y, z.
+__attribute__((target("avx2"))) inline void deinterleave_xyz4(__m256d v0, __m256d v1, __m256d v2, __m256d* x,
+                                                              __m256d* y, __m256d* z) {
   const __m256d bx = _mm256_blend_pd(_mm256_blend_pd(v0, v1, 0x4), v2, 0x2);  // x0 x3 x2 x1
   const __m256d by = _mm256_blend_pd(_mm256_blend_pd(v0, v1, 0x9), v2, 0x4);  // y1 y0 y3 y2
   const __m256d bz = _mm256_blend_pd(_mm256_blend_pd(v0, v1, 0x2), v2, 0x9);  // z2 z1 z0 z3
   *x = _mm256_permute4x64_pd(bx, _MM_SHUFFLE(1, 2, 3, 0));
   *y = _mm256_permute4x64_pd(by, _MM_SHUFFLE(2, 3, 0, 1));
   *z = _mm256_permute4x64_pd(bz, _MM_SHUFFLE(3, 0, 1, 2));
+}
+template <>
+__attribute__((target("avx2"))) inline void load_points4<3, float>(const float* a, size_t, __m256d* x, __m256d* y,
+                                                                   __m256d* z) {
+  // float -> double is exact: widen the three packed vectors, then take them apart as doubles.
+  deinterleave_xyz4(_mm256_cvtps_pd(_mm_loadu_ps(a)), _mm256_cvtps_pd(_mm_loadu_ps(a + 4)),
+                    _mm256_cvtps_pd(_mm_loadu_ps(a + 8)), x, y, z);
+}
+template <>
+__attribute__((target("avx2"))) inline void load_points4<3, double>(const double* a, size_t, __m256d* x, __m256d* y,
+                                                                    __m256d* z) {
+  deinterleave_xyz4(_mm256_loadu_pd(a), _mm256_loadu_pd(a + 4), _mm256_loadu_pd(a + 8), x, y, z);
 }
 
 // scan_block_scalar four points at a time (AVX2, no FMA): ok, el and the flags are the same values; the sums are
