@@ -41,8 +41,6 @@ class CandidateIndex {
   CandidateIndex(const CandidateIndex&) = delete;
   CandidateIndex& operator=(const CandidateIndex&) = delete;
 
-  const ScanFeatures& features() const { return *a_; }
-
   struct Lines;  // one kind (H or V) of frame a's lines (candidates.cpp)
 
  private:
