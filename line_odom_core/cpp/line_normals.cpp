@@ -6,6 +6,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "lent_workspace.hpp"
+
 namespace line_odom {
 
 namespace {
@@ -23,8 +25,7 @@ struct CrossingLists {
   std::vector<PackedCrossing> items;
 };
 
-// Work buffers kept per thread between calls: a full-resolution frame needs a few MB, which freshly allocated
-// would cost page faults on every frame.
+// Work buffers of the normals, kept per thread (lent_workspace.hpp).
 struct NormalWorkspace {
   CrossingLists lists;
   std::vector<int> fill;
@@ -34,12 +35,6 @@ struct NormalWorkspace {
   std::vector<int> votes;
   std::vector<double> vx, vy, vz;
 };
-
-// Callers move it into a local for the call (the compiler keeps a local's buffers in registers) and back.
-NormalWorkspace& kept_workspace() {
-  thread_local NormalWorkspace kept;
-  return kept;
-}
 
 const CrossingLists& build_lists(const std::vector<LineCrossing>& crossings, size_t lines, bool horizontal,
                                  NormalWorkspace& ws) {
@@ -211,20 +206,16 @@ std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLine
 
 void assign_line_normals(const std::vector<LineCrossing>& crossings, const NormalConfig& config,
                          ScanLines* lines) {
-  NormalWorkspace ws = std::move(kept_workspace());
+  LentWorkspace<NormalWorkspace> lent;
+  NormalWorkspace& ws = *lent;
   robust_normal(build_lists(crossings, lines->h_lines.size(), true, ws), config, &lines->h_lines);
   robust_normal(build_lists(crossings, lines->v_lines.size(), false, ws), config, &lines->v_lines);
-  kept_workspace() = std::move(ws);
 }
 
 std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector<LineFeature>* h_lines,
                                          std::vector<LineFeature>* v_lines) {
-  NormalWorkspace ws = std::move(kept_workspace());
-  // every return hands the buffers back
-  struct KeepOnExit {
-    NormalWorkspace& ws;
-    ~KeepOnExit() { kept_workspace() = std::move(ws); }
-  } keep_on_exit{ws};
+  LentWorkspace<NormalWorkspace> lent;
+  NormalWorkspace& ws = *lent;
   auto& members = ws.members;
   auto& normals = ws.normals;
   members.clear();

@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "lent_workspace.hpp"
+
 namespace line_odom {
 
 namespace {
@@ -119,8 +121,7 @@ struct GrowLine {
   double limit_a, limit_b;
 };
 
-// Work buffers of fit_planes, kept per thread between calls: a full-resolution frame needs a few MB, which
-// freshly allocated would cost page faults on every frame.
+// Work buffers of fit_planes, kept per thread (lent_workspace.hpp).
 struct PlaneFitWorkspace {
   std::vector<Vec3> normal;
   std::vector<std::uint8_t> known;
@@ -163,8 +164,8 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   // One index space over all lines: H-lines first, then V-lines.
   const int nh = static_cast<int>(H.size()), nl = nh + static_cast<int>(V.size());
   auto line = [&](int i) -> LineFeature& { return i < nh ? H[i] : V[i - nh]; };
-  thread_local PlaneFitWorkspace kept;
-  PlaneFitWorkspace ws = std::move(kept);
+  LentWorkspace<PlaneFitWorkspace> lent;
+  PlaneFitWorkspace& ws = *lent;
   // The line fields the crossing graph reads, packed.
   auto& normal = ws.normal;
   auto& known = ws.known;
@@ -416,7 +417,6 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
   }
   for (int i = 0; i < nl; ++i)
     if (region[i] >= 0) line(i).plane = plane_of_region[region[i]];
-  kept = std::move(ws);
   return planes;
 }
 
