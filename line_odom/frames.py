@@ -12,6 +12,8 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from line_odom_core._core import quaternion_xyzw as quaternion_from_matrix, rotation_vector
+
 
 def pose_from_params(values: Sequence[float], name: str) -> np.ndarray:
     """[x, y, z, roll, pitch, yaw] (radians; R = Rz(yaw) Ry(pitch) Rx(roll)) or [x, y, z, qx, qy, qz, qw]
@@ -65,7 +67,7 @@ def adjoint(T: np.ndarray) -> np.ndarray:
 
 def log_se3(T: np.ndarray) -> np.ndarray:
     """xi = (rho, phi) with exp(xi) = T (the constant body twist that moves by T in unit time)."""
-    phi = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    phi = rotation_vector(T[:3, :3])
     theta = float(np.linalg.norm(phi))
     W = skew(phi)
     if theta < 1e-6:
@@ -114,4 +116,5 @@ def symmetrize(M: np.ndarray) -> np.ndarray:
 
 
 def quaternion_xyzw(R: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(R).as_quat()
+    """[x, y, z, w] with w >= 0."""
+    return quaternion_from_matrix(R)
