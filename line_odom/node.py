@@ -136,6 +136,7 @@ class LineOdomNode(Node):
             inputs = [self.resolve_topic_name("depth/image"), self.resolve_topic_name("depth/camera_info")]
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_timer(s.diagnostics_period, self._publish_diagnostics)
+        self._last_path_stamp: float | None = None
         self._worker = threading.Thread(target=self._work, name="line_odom_worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -270,12 +271,21 @@ class LineOdomNode(Node):
                 self.pub_odom.publish(out.odometry)
                 if self.pub_tf is not None and out.tf is not None:
                     self.pub_tf.publish(out.tf)
-                self.pub_path.publish(out.path)
+                if self.pub_path.get_subscription_count() > 0 and self._path_due(out.stamp):
+                    self.pub_path.publish(out.path)  # ~3.7 ms for 1,000 poses: only when wanted
             except Exception as err:  # never let one frame kill the node
                 if self._slot.closed:
                     break
                 self.get_logger().error(f"frame failed: {err}\n{traceback.format_exc()}")
                 self.processor.note_failure(f"{type(err).__name__}: {err}")
+
+    def _path_due(self, stamp: float) -> bool:
+        """path.period seconds of stamps since the last path sent (always after a stamp went backwards)."""
+        last = self._last_path_stamp
+        if last is not None and last <= stamp < last + self.processor.settings.path_period:
+            return False
+        self._last_path_stamp = stamp
+        return True
 
     def shutdown(self) -> None:
         self._slot.close()

@@ -51,6 +51,8 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
                   "a reset: [x, y, z, roll, pitch, yaw] (m, rad) or [x, y, z, qx, qy, qz, qw]"),
     NodeParameter("path.max_poses", int, 1000, "poses kept in the published nav_msgs/Path (oldest dropped)", 1,
                   1_000_000),
+    NodeParameter("path.period", float, 0.0, "seconds (of frame stamps) between published paths, 0 = every frame; "
+                  "a path is sent only while something subscribes to it", 0.0, 3600.0),
     NodeParameter("qos.reliable", bool, False, "subscribe to the input with reliable QoS instead of SensorDataQoS "
                   "(best effort; REP-2003)"),
     NodeParameter("qos.depth", int, 5, "input subscription queue depth", 1, 1000),
@@ -113,6 +115,7 @@ class NodeSettings:
     base_to_sensor: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
     initial_pose: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
     path_max_poses: int = 1000
+    path_period: float = 0.0
     qos_reliable: bool = False
     qos_depth: int = 5
     max_points: int = 2_000_000

@@ -182,6 +182,25 @@ def test_kitti_clouds_through_the_node(run_node, layout, seq_name, frames_n):
     print(f"{layout} KITTI {seq_name} through the node: RPE mean {t_err.mean():.3f} m {r_err.mean():.3f} deg")
 
 
+def test_path_period_thins_the_published_paths(run_node):
+    seq = kitti_sequence("07", 7)
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "path.period": 0.25})
+    pub = h.publisher(PointCloud2, node.topic("points"))
+    h.wait_matched(pub, node, STARTUP_S)
+    stamps = [1000.0 + float(t) for t in seq.times]
+    odoms = [publish_and_wait(h, node, pub, kitti_unorganized(seq, i, s), s) for i, s in enumerate(stamps)]
+    expected, last = [], None  # frames whose path is due: 0.25 s of stamps after the last one sent
+    for k, s in enumerate(stamps):
+        if last is None or s >= last + 0.25:
+            expected.append(k)
+            last = s
+    assert 2 <= len(expected) < len(stamps)
+    h.wait_for(lambda: len(h.paths) >= len(expected), 30, f"{len(expected)} paths", node)
+    time.sleep(0.5)  # nothing more arrives
+    assert [len(p.poses) for p in h.paths] == [k + 1 for k in expected]
+    assert [p.header.stamp for p in h.paths] == [odoms[k].header.stamp for k in expected]
+
+
 def test_tum_depth_images_through_the_node(run_node):
     seq = tum_sequence(frames=20)
     take = list(range(20))
