@@ -281,37 +281,52 @@ void mark_box_overlaps(const std::array<std::vector<float>, 6>& columns, const s
 }
 
 // The k partners closest by (distance, line of frame a) among `nearby`, those within max_distance; the same
-// choice as computing every distance and keeping the k smallest. A partner whose box gap exceeds the k-th
-// distance found so far (with a margin far above rounding) cannot be among them and is not measured.
+// choice as computing every distance and keeping the k smallest (the order of the measurements does not matter).
+// A partner whose box gap exceeds the k-th distance found so far (with a margin far above rounding) cannot be among
+// them and is not measured.
 void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, const Segment& sb,
                       const PluckerLine& sb_carrier, double sb_magnitude, double max_distance, int k,
                       std::vector<std::pair<double, int>>* best) {
   best->clear();
+  if (k <= 0) return;
   auto before = [](const std::pair<double, int>& x, const std::pair<double, int>& y) {
     return x.first < y.first || (x.first == y.first && x.second < y.second);
   };
+  const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.magnitude);
+  double bound = std::numeric_limits<double>::infinity(), bound2 = bound;  // while fewer than k: measure all
   auto measure = [&](int ia) {
     const double dist = segment_distance(indexed.lines[ia]->segment, sb);
     if (!(dist <= max_distance)) return;
     const std::pair<double, int> p{dist, ia};
     if (static_cast<int>(best->size()) < k) {
-      best->insert(std::upper_bound(best->begin(), best->end(), p, before), p);
+      best->push_back(p);
     } else if (before(p, best->back())) {
-      best->pop_back();
-      best->insert(std::upper_bound(best->begin(), best->end(), p, before), p);
+      best->back() = p;
+    } else {
+      return;
+    }
+    for (size_t j = best->size() - 1; j > 0 && before((*best)[j], (*best)[j - 1]); --j) std::swap((*best)[j], (*best)[j - 1]);
+    if (static_cast<int>(best->size()) == k) {
+      bound = best->back().first + margin;
+      bound2 = bound * bound;
     }
   };
-  const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.magnitude);
-  if (n > static_cast<size_t>(k)) {
-    // Measure the k smallest box gaps first: their distances bound the k-th distance from the start.
-    std::nth_element(nearby, nearby + k, nearby + n,
-                     [](const Nearby& x, const Nearby& y) { return x.box_gap2 < y.box_gap2; });
+  const size_t first = std::min(n, static_cast<size_t>(k));
+  if (n > first) {
+    // Measure the k smallest box gaps first: their distances bound the k-th distance from the start. Kept sorted
+    // in the first k places; a later gap enters only when below the largest of them.
+    for (size_t i = 1; i < first; ++i)
+      for (size_t j = i; j > 0 && nearby[j].box_gap2 < nearby[j - 1].box_gap2; --j) std::swap(nearby[j], nearby[j - 1]);
+    for (size_t i = first; i < n; ++i) {
+      if (!(nearby[i].box_gap2 < nearby[first - 1].box_gap2)) continue;
+      std::swap(nearby[i], nearby[first - 1]);
+      for (size_t j = first - 1; j > 0 && nearby[j].box_gap2 < nearby[j - 1].box_gap2; --j) std::swap(nearby[j], nearby[j - 1]);
+    }
   }
   for (size_t i = 0; i < n; ++i) {
     const Nearby& c = nearby[i];
-    if (static_cast<int>(best->size()) == k) {
-      const double bound = best->back().first + margin;
-      if (c.box_gap2 > bound * bound) continue;
+    if (c.box_gap2 > bound2) continue;
+    if (bound2 != std::numeric_limits<double>::infinity()) {
       // The distance between the lines through the segments bounds theirs too: |reciprocal product| / |sine|.
       const PluckerLine& ca = indexed.carriers[c.ia];
       const double f = std::abs(ca.d.dot(sb_carrier.m) + sb_carrier.d.dot(ca.m));
