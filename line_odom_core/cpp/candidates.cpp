@@ -151,22 +151,77 @@ struct LinePair {
   double distance;
 };
 
-// What the filters of one line of frame a read, packed in one record (two cache lines) so that a partner visited
-// from the grid costs one scattered read; the segment itself is read only for the exact distance.
-struct LineRecord {
-  Vec3 box_lo, box_hi;  // segment bounding box: a box gap above the pass distance rules a pair out
-  Vec3 d;               // line direction
-  Vec3 normal;          // surface normal (0 if unknown)
+// What the filters read of the lines of frame a, one column per value so that a kernel tests four partners at once.
+// A line without a known normal has normal 0 and normal_norm 0: its normal test divides 0 by 0 and never rejects.
+struct PartnerColumns {
+  std::array<std::vector<double>, 3> box_lo, box_hi;  // segment bounding box: a gap above the distance rules out
+  std::array<std::vector<double>, 3> d;                // line direction
+  std::array<std::vector<double>, 3> normal;           // surface normal (0 if unknown)
+  std::vector<double> normal_norm;
+};
+
+// One line of frame b moved into frame a, as the filters read it.
+struct PartnerQuery {
+  std::array<double, 3> box_lo, box_hi, d, normal;
   double normal_norm;
   bool normal_known;
+  double box_gap;          // the distance with its rounding margin
+  double max_cos_lines;    // |cos| of the smallest angle between the lines
+  double min_cos_normals;  // |cos| of the largest angle between known normals
 };
+
+typedef double Lanes __attribute__((vector_size(32)));
+typedef long long LaneMask __attribute__((vector_size(32)));
+
+// The lines `ids` (count of them, readable up to a whole multiple of 4) of frame a that pass the filters of `q`,
+// written to `out` with their squared box gaps; returns how many. The same sums in the same order as the scalar
+// Eigen expressions: |n_a . n_b| / (|n_a| |n_b|) < min_cos_normals (both normals known), |d_a . d_b| >
+// max_cos_lines and a box gap above box_gap reject; the squared gap is ((x^2 + y^2) + z^2).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+size_t filter_partners(const PartnerColumns& c, const int* ids, size_t count, const PartnerQuery& q, Nearby* out) {
+  size_t kept = 0;
+  const Lanes zero = {0.0, 0.0, 0.0, 0.0};
+  for (size_t i = 0; i < count; i += 4) {
+    const int i0 = ids[i], i1 = ids[i + 1], i2 = ids[i + 2], i3 = ids[i + 3];
+    auto column = [&](const std::vector<double>& v) {
+      const double* p = v.data();
+      return Lanes{p[i0], p[i1], p[i2], p[i3]};
+    };
+    auto absolute = [](Lanes v) { return v < 0.0 ? -v : v; };
+    auto larger = [](Lanes x, Lanes y) { return x > y ? x : y; };
+    const Lanes lo_x = column(c.box_lo[0]) - q.box_hi[0], lo_y = column(c.box_lo[1]) - q.box_hi[1],
+                lo_z = column(c.box_lo[2]) - q.box_hi[2];
+    const Lanes hi_x = q.box_lo[0] - column(c.box_hi[0]), hi_y = q.box_lo[1] - column(c.box_hi[1]),
+                hi_z = q.box_lo[2] - column(c.box_hi[2]);
+    LaneMask reject = (lo_x > q.box_gap) | (lo_y > q.box_gap) | (lo_z > q.box_gap) | (hi_x > q.box_gap) |
+                      (hi_y > q.box_gap) | (hi_z > q.box_gap);
+    const Lanes d_dot = (column(c.d[0]) * q.d[0] + column(c.d[1]) * q.d[1]) + column(c.d[2]) * q.d[2];
+    reject |= absolute(d_dot) > q.max_cos_lines;
+    if (q.normal_known) {
+      const Lanes n_dot =
+          (column(c.normal[0]) * q.normal[0] + column(c.normal[1]) * q.normal[1]) + column(c.normal[2]) * q.normal[2];
+      reject |= absolute(n_dot) / (column(c.normal_norm) * q.normal_norm) < q.min_cos_normals;
+    }
+    const Lanes gap_x = larger(larger(lo_x, hi_x), zero), gap_y = larger(larger(lo_y, hi_y), zero),
+                gap_z = larger(larger(lo_z, hi_z), zero);
+    const Lanes gap2 = (gap_x * gap_x + gap_y * gap_y) + gap_z * gap_z;
+    const int lanes = static_cast<int>(std::min<size_t>(4, count - i));
+    for (int l = 0; l < lanes; ++l) {
+      out[kept] = {ids[i + l], gap2[l]};
+      kept += reject[l] == 0;
+    }
+  }
+  return kept;
+}
 
 }  // namespace
 
 // The usable lines of one kind (H or V) of frame a with their records, grids and the work buffers of a match.
 struct CandidateIndex::Lines {
   std::vector<const LineFeature*> lines;
-  std::vector<LineRecord> records;
+  PartnerColumns columns;
   std::vector<PluckerLine> carriers;  // the lines through the segments (from their end points)
   double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
   // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
@@ -180,6 +235,7 @@ struct CandidateIndex::Lines {
   int stamp = -1;
   std::vector<std::uint8_t> overlap;
   std::vector<Nearby> nearby;
+  std::vector<int> partner_ids;  // lines of frame a whose boxes come near the line of b, before the filters
   std::vector<std::pair<double, int>> best;
   // The box scan of the first match against lines_b: per line of b its float reach and the lines whose float boxes
   // reached into it. A later match of the same lines_b whose reach lies within the listed one (the guess moved the
@@ -191,29 +247,33 @@ struct CandidateIndex::Lines {
   std::vector<int> listed_ids;
 
   explicit Lines(const std::vector<LineFeature>& all) : lines(usable(all)) {
-    records.resize(lines.size());
     carriers.resize(lines.size());
     for (auto& c : box_columns) c.resize(lines.size());
+    for (int k = 0; k < 3; ++k)
+      for (auto* column : {&columns.box_lo[k], &columns.box_hi[k], &columns.d[k], &columns.normal[k]})
+        column->resize(lines.size());
+    columns.normal_norm.resize(lines.size());
     for (size_t i = 0; i < lines.size(); ++i) {
       const LineFeature& l = *lines[i];
-      LineRecord& r = records[i];
-      r.box_lo = l.segment.a.cwiseMin(l.segment.b);
-      r.box_hi = l.segment.a.cwiseMax(l.segment.b);
-      r.d = l.line.d;
+      const Vec3 box_lo = l.segment.a.cwiseMin(l.segment.b), box_hi = l.segment.a.cwiseMax(l.segment.b);
+      const bool normal_known = l.normal.squaredNorm() > 0.25;
       carriers[i] = l.segment.line();
-      r.normal = l.normal;
-      r.normal_norm = l.normal.norm();
-      r.normal_known = l.normal.squaredNorm() > 0.25;
-      magnitude = std::max({magnitude, r.box_lo.cwiseAbs().maxCoeff(), r.box_hi.cwiseAbs().maxCoeff()});
       for (int k = 0; k < 3; ++k) {
-        box_columns[k][i] = round_down(r.box_lo[k]);
-        box_columns[3 + k][i] = round_up(r.box_hi[k]);
+        columns.box_lo[k][i] = box_lo[k];
+        columns.box_hi[k][i] = box_hi[k];
+        columns.d[k][i] = l.line.d[k];
+        columns.normal[k][i] = normal_known ? l.normal[k] : 0.0;
+        box_columns[k][i] = round_down(box_lo[k]);
+        box_columns[3 + k][i] = round_up(box_hi[k]);
       }
+      columns.normal_norm[i] = normal_known ? l.normal.norm() : 0.0;
+      magnitude = std::max({magnitude, box_lo.cwiseAbs().maxCoeff(), box_hi.cwiseAbs().maxCoeff()});
     }
     have_bounds = SegmentGrid::bounds(lines, &lo, &hi);
     last_seen.assign(lines.size(), -1);
     overlap.resize(lines.size() + 32);  // padded to whole 32-byte blocks (the padding stays 0)
     nearby.resize(lines.size());       // a line of frame a at most once per search
+    partner_ids.resize(lines.size() + 3);  // the same, padded to whole groups of 4 for filter_partners
   }
 
   // The reach of the grid grid(max_distance, max_cells) would return (0 without one).
@@ -342,7 +402,6 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
                  const CandidateOptions& opt, std::vector<LinePair>* out) {
   const std::vector<const LineFeature*>& usable_a = indexed.lines;
   if (usable_a.empty()) return;
-  const std::vector<LineRecord>& records = indexed.records;
   const double max_cos_lines = std::cos(deg2rad(opt.min_line_angle_deg));
   const double min_cos_normals = std::cos(deg2rad(opt.max_normal_angle_deg));
   const int k = opt.max_pairs_per_line;
@@ -393,24 +452,22 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const PluckerLine sb_carrier = sb.line();
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
+    PartnerQuery query;
+    for (int c = 0; c < 3; ++c) {
+      query.box_lo[c] = sb_lo[c];
+      query.box_hi[c] = sb_hi[c];
+      query.d[c] = db[c];
+      query.normal[c] = nb[c];
+    }
+    query.normal_norm = nb_norm;
+    query.normal_known = nb_known;
+    query.max_cos_lines = max_cos_lines;
+    query.min_cos_normals = min_cos_normals;
     auto gather = [&](double distance, const SegmentGrid* grid) {
-      nearby_count = 0;
-      ++stamp;
       const double box_gap = distance * (1.0 + 1e-9) + 1e-9;
-      auto test = [&](int ia) {
-        const LineRecord& r = records[ia];
-        const Vec3 gap_lo = r.box_lo - sb_hi, gap_hi = sb_lo - r.box_hi;
-        if (gap_lo.maxCoeff() > box_gap || gap_hi.maxCoeff() > box_gap) return;
-        if (nb_known && r.normal_known && std::abs(r.normal.dot(nb)) / (r.normal_norm * nb_norm) < min_cos_normals)
-          return;
-        if (std::abs(r.d.dot(db)) > max_cos_lines) return;
-        nearby[nearby_count++] = {ia, gap_lo.cwiseMax(gap_hi).cwiseMax(0.0).squaredNorm()};
-      };
-      auto consider = [&](int ia) {  // the grid may visit a line more than once
-        if (last_seen[ia] == stamp) return;
-        last_seen[ia] = stamp;
-        test(ia);
-      };
+      query.box_gap = box_gap;
+      int* const ids = indexed.partner_ids.data();
+      size_t id_count = 0;
       if (brute_force) {
         // Few pairs: a scan of the boxes costs less than the grid's cell lists.
         std::array<float, 6> reach;
@@ -426,41 +483,46 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
           const auto [begin, end] = indexed.listed_range[ib];
           for (int e = begin; e < end; ++e) {
             const int ia = indexed.listed_ids[e];
-            if ((box[0][ia] <= reach[0]) & (box[1][ia] <= reach[1]) & (box[2][ia] <= reach[2]) &
-                (box[3][ia] >= reach[3]) & (box[4][ia] >= reach[4]) & (box[5][ia] >= reach[5]))
-              test(ia);
+            ids[id_count] = ia;
+            id_count += (box[0][ia] <= reach[0]) & (box[1][ia] <= reach[1]) & (box[2][ia] <= reach[2]) &
+                        (box[3][ia] >= reach[3]) & (box[4][ia] >= reach[4]) & (box[5][ia] >= reach[5]);
           }
-          return;
-        }
-        mark_box_overlaps(indexed.box_columns, reach, overlap);
-        const int na = static_cast<int>(usable_a.size());
-        auto visit = [&](int ia) {
-          if (listing) indexed.listed_ids.push_back(ia);
-          test(ia);
-        };
-        const int listed_begin = static_cast<int>(indexed.listed_ids.size());
-        for (int block = 0; block < na; block += 32) {
-          std::uint64_t words[4];  // overlaps are few: 32 boxes at a time, then only the set bytes
-          std::memcpy(words, overlap + block, sizeof words);
-          if ((words[0] | words[1] | words[2] | words[3]) == 0) continue;
-          for (int w = 0; w < 4; ++w) {
-            const int word = block + 8 * w;
+        } else {
+          mark_box_overlaps(indexed.box_columns, reach, overlap);
+          const int na = static_cast<int>(usable_a.size());
+          for (int block = 0; block < na; block += 32) {
+            std::uint64_t words[4];  // overlaps are few: 32 boxes at a time, then only the set bytes
+            std::memcpy(words, overlap + block, sizeof words);
+            if ((words[0] | words[1] | words[2] | words[3]) == 0) continue;
+            for (int w = 0; w < 4; ++w) {
+              const int word = block + 8 * w;
 #if defined(__GNUC__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-            for (std::uint64_t any = words[w]; any != 0; any &= any - 1) visit(word + (__builtin_ctzll(any) >> 3));
+              for (std::uint64_t any = words[w]; any != 0; any &= any - 1)
+                ids[id_count++] = word + (__builtin_ctzll(any) >> 3);
 #else
-            if (words[w] != 0)
-              for (int ia = word; ia < std::min(word + 8, na); ++ia)
-                if (overlap[ia]) visit(ia);
+              if (words[w] != 0)
+                for (int ia = word; ia < std::min(word + 8, na); ++ia)
+                  if (overlap[ia]) ids[id_count++] = ia;
 #endif
+            }
           }
-        }
-        if (listing) {
-          indexed.listed_reach[ib] = reach;
-          indexed.listed_range[ib] = {listed_begin, static_cast<int>(indexed.listed_ids.size())};
+          if (listing) {
+            indexed.listed_reach[ib] = reach;
+            indexed.listed_range[ib] = {static_cast<int>(indexed.listed_ids.size()),
+                                        static_cast<int>(indexed.listed_ids.size() + id_count)};
+            indexed.listed_ids.insert(indexed.listed_ids.end(), ids, ids + id_count);
+          }
         }
       } else {
-        grid->for_each_near(sb, consider);
+        ++stamp;
+        grid->for_each_near(sb, [&](int ia) {  // the grid may visit a line more than once
+          if (last_seen[ia] == stamp) return;
+          last_seen[ia] = stamp;
+          ids[id_count++] = ia;
+        });
       }
+      for (size_t pad = id_count; pad < id_count + 3; ++pad) ids[pad] = 0;
+      nearby_count = filter_partners(indexed.columns, ids, id_count, query, nearby);
     };
     best.clear();
     if (k > 0) {
