@@ -88,23 +88,31 @@ void mask_kernel(const Rows rows, const FlatMotion motion, double th2, double mi
 }
 
 LINE_ODOM_VECTOR_CLONES
-void move_kernel(const Rows rows, const FlatMotion motion, long begin, long end, MovedPairBlock* out) {
+void residual_kernel(const Rows rows, const double* weights, const FlatMotion motion, double th2, double min_s2,
+                     long begin, long end, LineResidualBlock* out) {
+  std::uint8_t used[LineResidualBlock::kSize];
 #pragma GCC ivdep
   for (long i = begin; i < end; ++i) {
     const PairTerms o = pair_terms(rows, motion, i);
     const long k = i - begin;
-    out->bd[0][k] = o.d0;
-    out->bd[1][k] = o.d1;
-    out->bd[2][k] = o.d2;
-    out->bm[0][k] = o.m0;
-    out->bm[1][k] = o.m1;
-    out->bm[2][k] = o.m2;
+    const double ax = rows.ad[0][i], ay = rows.ad[1][i], az = rows.ad[2][i];
+    const double amx = rows.am[0][i], amy = rows.am[1][i], amz = rows.am[2][i];
     out->c[0][k] = o.c0;
     out->c[1][k] = o.c1;
     out->c[2][k] = o.c2;
+    out->e[0][k] = (o.m1 * az - o.m2 * ay) + (o.d1 * amz - o.d2 * amy);
+    out->e[1][k] = (o.m2 * ax - o.m0 * az) + (o.d2 * amx - o.d0 * amz);
+    out->e[2][k] = (o.m0 * ay - o.m1 * ax) + (o.d0 * amy - o.d1 * amx);
     out->f[k] = o.f;
     out->s2[k] = o.s2;
+    used[k] = static_cast<std::uint8_t>((weights[i] > 0.0) & !(o.s2 < min_s2) & !(o.f * o.f >= th2 * o.s2));
   }
+  int count = 0;
+  for (long k = 0; k < end - begin; ++k) {
+    out->used[count] = static_cast<int>(k);
+    count += used[k];
+  }
+  out->used_count = count;
 }
 
 }  // namespace
@@ -133,20 +141,23 @@ void LinePairTable::inlier_mask(const RigidTransform& T, double threshold, doubl
               std::min(end, n_), mask);
 }
 
-int LinePairTable::move_block(const RigidTransform& T, int begin, int end, MovedPairBlock* out) const {
-  const int last = std::min({end, n_, begin + MovedPairBlock::kSize});
+int LinePairTable::residual_block(const RigidTransform& T, double threshold, double min_sine, int begin, int end,
+                                  LineResidualBlock* out) const {
+  const int last = std::min({end, n_, begin + LineResidualBlock::kSize});
+  out->used_count = 0;
   if (last <= begin) return 0;
-  move_kernel(rows_of(coords_.data(), n_), flatten(T), begin, last, out);
+  residual_kernel(rows_of(coords_.data(), n_), weights_.data(), flatten(T), threshold * threshold,
+                  min_sine * min_sine, begin, last, out);
   return last - begin;
 }
 
 double score_motion(const LinePairTable& pairs, const RigidTransform& T_ab, double threshold, double min_sine,
                     int* inliers) {
-  std::uint8_t mask[MovedPairBlock::kSize];
+  std::uint8_t mask[kPairBlockSize];
   double score = 0.0;
   int count = 0;
-  for (int begin = 0; begin < pairs.size(); begin += MovedPairBlock::kSize) {
-    const int end = std::min(pairs.size(), begin + MovedPairBlock::kSize);
+  for (int begin = 0; begin < pairs.size(); begin += kPairBlockSize) {
+    const int end = std::min(pairs.size(), begin + kPairBlockSize);
     pairs.inlier_mask(T_ab, threshold, min_sine, begin, end, mask);
     for (int i = begin; i < end; ++i)
       if (mask[i - begin]) score += pairs.weight(i), ++count;

@@ -13,14 +13,19 @@
 
 namespace line_odom {
 
-// b-lines moved by T and the pair terms for a block of pairs (index k = pair - begin).
-struct MovedPairBlock {
-  static constexpr int kSize = 256;
-  double bd[3][kSize];  // d_b' = R d_b
-  double bm[3][kSize];  // m_b' = R m_b + t x d_b'
-  double c[3][kSize];   // d_a x d_b'
-  double f[kSize];      // reciprocal product d_a.m_b' + d_b'.m_a
-  double s2[kSize];     // |d_a x d_b'|^2
+// The refinement's view of a block of pairs under T (index k = pair - begin): the terms of the signed distance
+// r = f / s and its derivative J = (-c / s, e / s) for the left perturbation of refine.hpp, s = |d_a x d_b'|, and the
+// pairs it uses (weight > 0, s >= min_sine, |r| < threshold) in pair order.
+constexpr int kPairBlockSize = 256;  // pairs per call of the block-wise loops
+
+struct LineResidualBlock {
+  static constexpr int kSize = kPairBlockSize;
+  double c[3][kSize];  // d_a x d_b'
+  double e[3][kSize];  // m_b' x d_a + d_b' x m_a
+  double f[kSize];     // reciprocal product d_a.m_b' + d_b'.m_a
+  double s2[kSize];    // |d_a x d_b'|^2
+  int used[kSize];     // k of the pairs the refinement uses, ascending
+  int used_count = 0;
 };
 
 class LinePairTable {
@@ -31,6 +36,7 @@ class LinePairTable {
 
   int size() const { return n_; }
   double weight(int i) const { return weights_[i]; }
+  const double* weights() const { return weights_.data(); }
   Vec3 a_d(int i) const { return {row(0)[i], row(1)[i], row(2)[i]}; }
   Vec3 a_m(int i) const { return {row(3)[i], row(4)[i], row(5)[i]}; }
 
@@ -38,8 +44,9 @@ class LinePairTable {
   // for i in [begin, end).
   void inlier_mask(const RigidTransform& T, double threshold, double min_sine, int begin, int end,
                    std::uint8_t* mask) const;
-  // Pairs [begin, min(end, begin + MovedPairBlock::kSize)) moved by T; returns the number filled.
-  int move_block(const RigidTransform& T, int begin, int end, MovedPairBlock* out) const;
+  // Pairs [begin, min(end, begin + LineResidualBlock::kSize)) under T; returns the number filled.
+  int residual_block(const RigidTransform& T, double threshold, double min_sine, int begin, int end,
+                     LineResidualBlock* out) const;
 
  private:
   const double* row(int r) const { return coords_.data() + static_cast<size_t>(r) * n_; }

@@ -229,7 +229,7 @@ class MotionHybridEstimator {
     const double best_fraction = to_beat > 0.0 && d_.total_line_weight > 0.0 ? to_beat / d_.total_line_weight : 0.0;
     double weight = 0.0;
     int count = 0;
-    std::uint8_t meets[MovedPairBlock::kSize];
+    std::uint8_t meets[kPairBlockSize];
     int block_begin = 0, block_end = 0;
     for (int i = 0; i < n_lines_; ++i) {
       if (i == pretest_size_ && best_fraction > 0.0) {
@@ -240,7 +240,7 @@ class MotionHybridEstimator {
       if (i == block_end) {
         // Blocks end at the pre-test, so a hypothesis it drops costs no more pairs than it read.
         block_begin = i;
-        block_end = std::min(n_lines_, i + MovedPairBlock::kSize);
+        block_end = std::min(n_lines_, i + kPairBlockSize);
         if (i < pretest_size_ && best_fraction > 0.0) block_end = std::min(block_end, pretest_size_);
         d_.pairs.inlier_mask(T, options_.inlier_threshold, kMinLineSine, block_begin, block_end, meets);
       }

@@ -6,6 +6,13 @@
 #include <cstdint>
 #include <vector>
 
+// An AVX2 copy of the line sums next to the baseline one, chosen at load time (line_pair_table.cpp); no "fma".
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define LINE_ODOM_VECTOR_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define LINE_ODOM_VECTOR_CLONES
+#endif
+
 namespace line_odom {
 namespace {
 
@@ -33,47 +40,74 @@ struct NormalEquations {
   int plane_inliers = 0;
 };
 
+// Four running sums side by side (GCC / clang vector extension: element-wise IEEE operations, so each lane is the
+// scalar sum bit for bit; the lanes only let one instruction update several of the normal equations' sums).
+typedef double Lanes4 __attribute__((vector_size(32)));
+
+// The line pairs' sums of NormalEquations, lane by lane: H(row, col) of the lower triangle in `h`, g in `g` and
+// `g45_sq_h55`, the scalar sums in `weights_sq`.
+struct LineSums {
+  Lanes4 h[5] = {};      // (0,0) (1,0) (2,0) (3,0) | (1,1) (2,1) (3,1) (4,1) | (2,2) (3,2) (4,2) (5,2) |
+                         // (3,3) (4,3) (5,3) (4,4) | (4,0) (5,0) (5,1) (5,4)
+  Lanes4 g = {};         // g 0..3
+  Lanes4 g45_sq_h55 = {};  // g 4, g 5, weighted_sq, H(5,5)
+  Lanes4 weights_sq = {};  // weight_sum, line_inlier_weight, line_sq, 0
+};
+
+// H += w J J^T, g += w r J and the sums over the used pairs of a block, in pair order: each sum adds the same
+// products in the same order as a scalar loop would (H(row, col) += (w J_col) J_row, g += (w r) J).
+LINE_ODOM_VECTOR_CLONES
+void accumulate_lines(const LineResidualBlock& block, const double* pair_weights, double weight_scale, double huber,
+                      LineSums* sums) {
+  Lanes4 h0 = sums->h[0], h1 = sums->h[1], h2 = sums->h[2], h3 = sums->h[3], h4 = sums->h[4];
+  Lanes4 g = sums->g, g45_sq_h55 = sums->g45_sq_h55, weights_sq = sums->weights_sq;
+  for (int u = 0; u < block.used_count; ++u) {
+    const int k = block.used[u];
+    const double w_pair = pair_weights[k];
+    const double inv_s = 1.0 / std::sqrt(block.s2[k]);  // one division per pair, not seven
+    const double r = block.f[k] * inv_s;
+    // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held.
+    const double J0 = -inv_s * block.c[0][k], J1 = -inv_s * block.c[1][k], J2 = -inv_s * block.c[2][k];
+    const double J3 = inv_s * block.e[0][k], J4 = inv_s * block.e[1][k], J5 = inv_s * block.e[2][k];
+    const double w_scaled = w_pair * weight_scale;
+    const double w = w_scaled * huber_weight(std::abs(r), huber);
+    const double wJ0 = w * J0, wJ1 = w * J1, wJ2 = w * J2, wJ3 = w * J3, wJ4 = w * J4, wJ5 = w * J5;
+    const double wr = w * r;
+    h0 += Lanes4{wJ0, wJ0, wJ0, wJ0} * Lanes4{J0, J1, J2, J3};
+    h1 += Lanes4{wJ1, wJ1, wJ1, wJ1} * Lanes4{J1, J2, J3, J4};
+    h2 += Lanes4{wJ2, wJ2, wJ2, wJ2} * Lanes4{J2, J3, J4, J5};
+    h3 += Lanes4{wJ3, wJ3, wJ3, wJ4} * Lanes4{J3, J4, J5, J4};
+    h4 += Lanes4{wJ0, wJ0, wJ1, wJ4} * Lanes4{J4, J5, J5, J5};
+    g += Lanes4{wr, wr, wr, wr} * Lanes4{J0, J1, J2, J3};
+    g45_sq_h55 += Lanes4{wr, wr, wr, wJ5} * Lanes4{J4, J5, r, J5};
+    weights_sq += Lanes4{w_scaled, w_pair, r * r, 0.0};
+  }
+  sums->h[0] = h0, sums->h[1] = h1, sums->h[2] = h2, sums->h[3] = h3, sums->h[4] = h4;
+  sums->g = g, sums->g45_sq_h55 = g45_sq_h55, sums->weights_sq = weights_sq;
+}
+
 NormalEquations accumulate(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T,
                            const RefineOptions& o, double weight_scale) {
   NormalEquations ne;
   const double huber = o.huber_delta > 0.0 ? o.huber_delta : o.line_threshold;
-  const double min_s2 = o.min_line_sine * o.min_line_sine;
-  const double th2 = o.line_threshold * o.line_threshold;
-  MovedPairBlock block;
-  for (int begin = 0; begin < pairs.size(); begin += MovedPairBlock::kSize) {
-    const int count = pairs.move_block(T, begin, pairs.size(), &block);
-    for (int k = 0; k < count; ++k) {
-      const int i = begin + k;
-      const double w_pair = pairs.weight(i);
-      if (!(w_pair > 0.0)) continue;
-      const double s2 = block.s2[k];
-      if (s2 < min_s2) continue;
-      const double f = block.f[k];
-      if (f * f >= th2 * s2) continue;
-      const double inv_s = 1.0 / std::sqrt(s2);  // one division per pair, not seven
-      const double r = f * inv_s;
-      const Vec3 c(block.c[0][k], block.c[1][k], block.c[2][k]);
-      const Vec3 bd(block.bd[0][k], block.bd[1][k], block.bd[2][k]);
-      const Vec3 bm(block.bm[0][k], block.bm[1][k], block.bm[2][k]);
-      // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held.
-      Vec6 J;
-      J.head<3>() = -inv_s * c;
-      J.tail<3>() = inv_s * (bm.cross(pairs.a_d(i)) + bd.cross(pairs.a_m(i)));
-      const double w = w_pair * weight_scale * huber_weight(std::abs(r), huber);
-      // Lower triangle of H += w J J^T, column by column as Eigen's rankUpdate does, without its call overhead.
-      for (int col = 0; col < 6; ++col) {
-        const double wj = w * J[col];
-        for (int row = col; row < 6; ++row) ne.H(row, col) += wj * J[row];
-      }
-      ne.g.noalias() += w * r * J;
-      ne.weighted_sq += w * r * r;
-      ne.weight_sum += w_pair * weight_scale;
-      ne.residuals += 1;
-      ne.line_inliers += 1;
-      ne.line_inlier_weight += w_pair;
-      ne.line_sq += r * r;
-    }
+  LineResidualBlock block;
+  LineSums sums;
+  for (int begin = 0; begin < pairs.size(); begin += LineResidualBlock::kSize) {
+    pairs.residual_block(T, o.line_threshold, o.min_line_sine, begin, pairs.size(), &block);
+    accumulate_lines(block, pairs.weights() + begin, weight_scale, huber, &sums);
+    ne.line_inliers += block.used_count;
   }
+  constexpr int kLowerRow[5][4] = {{0, 1, 2, 3}, {1, 2, 3, 4}, {2, 3, 4, 5}, {3, 4, 5, 4}, {4, 5, 5, 5}};
+  constexpr int kLowerCol[5][4] = {{0, 0, 0, 0}, {1, 1, 1, 1}, {2, 2, 2, 2}, {3, 3, 3, 4}, {0, 0, 1, 4}};
+  for (int v = 0; v < 5; ++v)
+    for (int lane = 0; lane < 4; ++lane) ne.H(kLowerRow[v][lane], kLowerCol[v][lane]) = sums.h[v][lane];
+  ne.H(5, 5) = sums.g45_sq_h55[3];
+  ne.g << sums.g[0], sums.g[1], sums.g[2], sums.g[3], sums.g45_sq_h55[0], sums.g45_sq_h55[1];
+  ne.weighted_sq = sums.g45_sq_h55[2];
+  ne.weight_sum = sums.weights_sq[0];
+  ne.line_inlier_weight = sums.weights_sq[1];
+  ne.line_sq = sums.weights_sq[2];
+  ne.residuals = ne.line_inliers;
   const double k_angle = o.line_threshold / o.plane_angle_threshold;
   const double k_dist = o.line_threshold / o.plane_distance_threshold;
   const double cos_th = std::cos(o.plane_angle_threshold);
