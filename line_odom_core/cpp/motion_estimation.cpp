@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <utility>
 
 #include "line_pair_table.hpp"
@@ -227,12 +228,13 @@ class MotionHybridEstimator {
     RansacScore sc;
     if (!T.is_finite()) return sc;
     const double best_fraction = to_beat > 0.0 && d_.total_line_weight > 0.0 ? to_beat / d_.total_line_weight : 0.0;
+    const bool pretest = best_fraction > 0.0;
     double weight = 0.0;
     int count = 0;
     std::uint8_t meets[kPairBlockSize];
     int block_begin = 0, block_end = 0;
-    for (int i = 0; i < n_lines_; ++i) {
-      if (i == pretest_size_ && best_fraction > 0.0) {
+    for (int i = 0; i < n_lines_;) {
+      if (i == pretest_size_ && pretest) {
         const double prefix = d_.total_line_weight - d_.suffix_weight[i];
         if (prefix > 0.0 && weight < 0.5 * best_fraction * prefix) return partial(sc, weight, count);
       }
@@ -241,12 +243,26 @@ class MotionHybridEstimator {
         // Blocks end at the pre-test, so a hypothesis it drops costs no more pairs than it read.
         block_begin = i;
         block_end = std::min(n_lines_, i + kPairBlockSize);
-        if (i < pretest_size_ && best_fraction > 0.0) block_end = std::min(block_end, pretest_size_);
+        if (i < pretest_size_ && pretest) block_end = std::min(block_end, pretest_size_);
         d_.pairs.inlier_mask(T, options_.inlier_threshold, kMinLineSine, block_begin, block_end, meets);
       }
-      if (meets[i - block_begin]) {
-        weight += w_.weights[i];
-        ++count;
+      // Up to the next pair a test above looks at.
+      int next_test = std::min(block_end, (i / kBoundCheckStride + 1) * kBoundCheckStride);
+      if (i < pretest_size_ && pretest) next_test = std::min(next_test, pretest_size_);
+      while (i < next_test) {
+        std::uint64_t eight_meets = 1;
+        if (i + 8 <= next_test) std::memcpy(&eight_meets, meets + (i - block_begin), 8);
+        if (eight_meets == 0) {  // most pairs miss a wrong hypothesis
+          i += 8;
+          continue;
+        }
+        const int last = std::min(next_test, i + 8);
+        for (; i < last; ++i) {
+          if (meets[i - block_begin]) {
+            weight += w_.weights[i];
+            ++count;
+          }
+        }
       }
     }
     int plane_count = 0;
