@@ -76,21 +76,28 @@ inline PairTerms pair_terms(const Rows& rows, const FlatMotion& M, long i) {
   return o;
 }
 
-// ivdep: the outputs never overlap the table (GCC otherwise gives up on the run-time alias checks).
+// ivdep: the outputs never overlap the table (GCC otherwise gives up on the run-time alias checks). The tests go
+// to 64-bit flags first: a byte store in the same loop would make it run 32 pairs per vector iteration, with long
+// scalar tails on the short blocks of the RANSAC pre-test.
 LINE_ODOM_VECTOR_CLONES
 void mask_kernel(const Rows rows, const FlatMotion motion, double th2, double min_s2, long begin, long end,
                  std::uint8_t* mask) {
+  std::int64_t meets[kPairBlockSize];
+  for (long chunk = begin; chunk < end; chunk += kPairBlockSize) {
+    const long chunk_end = std::min(end, chunk + kPairBlockSize);
 #pragma GCC ivdep
-  for (long i = begin; i < end; ++i) {
-    const PairTerms o = pair_terms(rows, motion, i);
-    mask[i - begin] = static_cast<std::uint8_t>((o.s2 >= min_s2) & (o.f * o.f < th2 * o.s2));
+    for (long i = chunk; i < chunk_end; ++i) {
+      const PairTerms o = pair_terms(rows, motion, i);
+      meets[i - chunk] = (o.s2 >= min_s2) & (o.f * o.f < th2 * o.s2);
+    }
+    for (long i = chunk; i < chunk_end; ++i) mask[i - begin] = static_cast<std::uint8_t>(meets[i - chunk]);
   }
 }
 
 LINE_ODOM_VECTOR_CLONES
 void residual_kernel(const Rows rows, const double* weights, const FlatMotion motion, double th2, double min_s2,
                      long begin, long end, LineResidualBlock* out) {
-  std::uint8_t used[LineResidualBlock::kSize];
+  std::int64_t used[LineResidualBlock::kSize];  // 64-bit, as in mask_kernel
 #pragma GCC ivdep
   for (long i = begin; i < end; ++i) {
     const PairTerms o = pair_terms(rows, motion, i);
@@ -105,12 +112,12 @@ void residual_kernel(const Rows rows, const double* weights, const FlatMotion mo
     out->e[2][k] = (o.m0 * ay - o.m1 * ax) + (o.d0 * amy - o.d1 * amx);
     out->f[k] = o.f;
     out->s2[k] = o.s2;
-    used[k] = static_cast<std::uint8_t>((weights[i] > 0.0) & !(o.s2 < min_s2) & !(o.f * o.f >= th2 * o.s2));
+    used[k] = (weights[i] > 0.0) & !(o.s2 < min_s2) & !(o.f * o.f >= th2 * o.s2);
   }
   int count = 0;
   for (long k = 0; k < end - begin; ++k) {
     out->used[count] = static_cast<int>(k);
-    count += used[k];
+    count += static_cast<int>(used[k]);
   }
   out->used_count = count;
 }
