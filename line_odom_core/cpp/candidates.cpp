@@ -138,6 +138,47 @@ constexpr double kNearMaxCells = 1 << 17;
 // visiting more partners in the 1 m pass's grid (1.5 m cells) costs less than building a grid of 0.75 m cells.
 constexpr double kGridReuse = 2.0;
 
+// A segment as segment_distance reads it: start, start-to-end vector and its squared length (kept per line of
+// frame a and per moved line of b, so that a distance computes only what depends on both).
+struct SegmentSpan {
+  Vec3 start, d;
+  double d2;
+  static SegmentSpan of(const Segment& s) {
+    const Vec3 d = s.b - s.a;
+    return {s.a, d, d.squaredNorm()};
+  }
+};
+
+// segment_distance of the spans.
+double span_distance(const SegmentSpan& s1, const SegmentSpan& s2) {
+  // Closest points p1 + s d1 and p2 + t d2, s, t in [0, 1] (clamped least squares).
+  const Vec3 &d1 = s1.d, &d2 = s2.d, r = s1.start - s2.start;
+  const double a = s1.d2, e = s2.d2, f = d2.dot(r);
+  double s = 0.0, t = 0.0;
+  if (a <= 1e-18 && e <= 1e-18) return r.norm();
+  if (a <= 1e-18) {
+    t = std::clamp(f / e, 0.0, 1.0);
+  } else {
+    const double c = d1.dot(r);
+    if (e <= 1e-18) {
+      s = std::clamp(-c / a, 0.0, 1.0);
+    } else {
+      const double b = d1.dot(d2), denom = a * e - b * b;
+      s = denom > 1e-18 * a * e ? std::clamp((b * f - c * e) / denom, 0.0, 1.0) : 0.0;
+      t = (b * s + f) / e;
+      if (t < 0.0) {
+        t = 0.0;
+        s = std::clamp(-c / a, 0.0, 1.0);
+      } else if (t > 1.0) {
+        t = 1.0;
+        s = std::clamp((b - c) / a, 0.0, 1.0);
+      }
+    }
+  }
+  return ((s1.start + d1 * s) - (s2.start + d2 * t)).norm();
+}
+
+
 // A partner that passed the filters, with the squared gap between the bounding boxes (a lower bound of the
 // squared segment distance).
 struct Nearby {
@@ -223,6 +264,7 @@ struct CandidateIndex::Lines {
   std::vector<const LineFeature*> lines;
   PartnerColumns columns;
   std::vector<PluckerLine> carriers;  // the lines through the segments (from their end points)
+  std::vector<SegmentSpan> spans;     // the segments, for their distances
   double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
   // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
   std::array<std::vector<float>, 6> box_columns;
@@ -248,6 +290,7 @@ struct CandidateIndex::Lines {
 
   explicit Lines(const std::vector<LineFeature>& all) : lines(usable(all)) {
     carriers.resize(lines.size());
+    spans.resize(lines.size());
     for (auto& c : box_columns) c.resize(lines.size());
     for (int k = 0; k < 3; ++k)
       for (auto* column : {&columns.box_lo[k], &columns.box_hi[k], &columns.d[k], &columns.normal[k]})
@@ -258,6 +301,7 @@ struct CandidateIndex::Lines {
       const Vec3 box_lo = l.segment.a.cwiseMin(l.segment.b), box_hi = l.segment.a.cwiseMax(l.segment.b);
       const bool normal_known = l.normal.squaredNorm() > 0.25;
       carriers[i] = l.segment.line();
+      spans[i] = SegmentSpan::of(l.segment);
       for (int k = 0; k < 3; ++k) {
         columns.box_lo[k][i] = box_lo[k];
         columns.box_hi[k][i] = box_hi[k];
@@ -344,7 +388,7 @@ void mark_box_overlaps(const std::array<std::vector<float>, 6>& columns, const s
 // choice as computing every distance and keeping the k smallest (the order of the measurements does not matter).
 // A partner whose box gap exceeds the k-th distance found so far (with a margin far above rounding) cannot be among
 // them and is not measured.
-void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, const Segment& sb,
+void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, const SegmentSpan& sb,
                       const PluckerLine& sb_carrier, double sb_magnitude, double max_distance, int k,
                       std::vector<std::pair<double, int>>* best) {
   best->clear();
@@ -355,7 +399,7 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
   const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.magnitude);
   double bound = std::numeric_limits<double>::infinity(), bound2 = bound;  // while fewer than k: measure all
   auto measure = [&](int ia) {
-    const double dist = segment_distance(indexed.lines[ia]->segment, sb);
+    const double dist = span_distance(indexed.spans[ia], sb);
     if (!(dist <= max_distance)) return;
     const std::pair<double, int> p{dist, ia};
     if (static_cast<int>(best->size()) < k) {
@@ -450,6 +494,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
     const double sb_magnitude = std::max(sb_lo.cwiseAbs().maxCoeff(), sb_hi.cwiseAbs().maxCoeff());
     const PluckerLine sb_carrier = sb.line();
+    const SegmentSpan sb_span = SegmentSpan::of(sb);
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
     PartnerQuery query;
@@ -530,17 +575,17 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       // k partners lie within near_distance, no partner farther away can displace them.
       if (near_distance > 0.0 && near_distance < opt.max_distance) {
         gather(near_distance, near_grid);
-        closest_partners(nearby, nearby_count, indexed, sb, sb_carrier, sb_magnitude, near_distance, k, &best);
+        closest_partners(nearby, nearby_count, indexed, sb_span, sb_carrier, sb_magnitude, near_distance, k, &best);
       }
       if (static_cast<int>(best.size()) < k) {
         gather(opt.max_distance, pass_grid());
-        closest_partners(nearby, nearby_count, indexed, sb, sb_carrier, sb_magnitude, opt.max_distance, k, &best);
+        closest_partners(nearby, nearby_count, indexed, sb_span, sb_carrier, sb_magnitude, opt.max_distance, k, &best);
       }
     } else {
       gather(opt.max_distance, pass_grid());
       for (size_t i = 0; i < nearby_count; ++i) {
         const Nearby& c = nearby[i];
-        const double dist = segment_distance(usable_a[c.ia]->segment, sb);
+        const double dist = span_distance(indexed.spans[c.ia], sb_span);
         if (dist <= opt.max_distance) best.emplace_back(dist, c.ia);
       }
     }
@@ -553,31 +598,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
 }  // namespace
 
 double segment_distance(const Segment& s1, const Segment& s2) {
-  // Closest points p1 + s d1 and p2 + t d2, s, t in [0, 1] (clamped least squares).
-  const Vec3 d1 = s1.b - s1.a, d2 = s2.b - s2.a, r = s1.a - s2.a;
-  const double a = d1.squaredNorm(), e = d2.squaredNorm(), f = d2.dot(r);
-  double s = 0.0, t = 0.0;
-  if (a <= 1e-18 && e <= 1e-18) return r.norm();
-  if (a <= 1e-18) {
-    t = std::clamp(f / e, 0.0, 1.0);
-  } else {
-    const double c = d1.dot(r);
-    if (e <= 1e-18) {
-      s = std::clamp(-c / a, 0.0, 1.0);
-    } else {
-      const double b = d1.dot(d2), denom = a * e - b * b;
-      s = denom > 1e-18 * a * e ? std::clamp((b * f - c * e) / denom, 0.0, 1.0) : 0.0;
-      t = (b * s + f) / e;
-      if (t < 0.0) {
-        t = 0.0;
-        s = std::clamp(-c / a, 0.0, 1.0);
-      } else if (t > 1.0) {
-        t = 1.0;
-        s = std::clamp((b - c) / a, 0.0, 1.0);
-      }
-    }
-  }
-  return ((s1.a + d1 * s) - (s2.a + d2 * t)).norm();
+  return span_distance(SegmentSpan::of(s1), SegmentSpan::of(s2));
 }
 
 CandidateIndex::CandidateIndex(const ScanFeatures& a)
