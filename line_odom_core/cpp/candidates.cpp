@@ -611,6 +611,8 @@ void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidT
   *out = Correspondences{};
   const ScanFeatures& a = *index.a_;
   std::vector<LinePair> pairs;
+  if (options.max_pairs_per_line > 0)  // at most k per line of b
+    pairs.reserve(static_cast<size_t>(options.max_pairs_per_line) * (b.v_lines.size() + b.h_lines.size()));
   match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
   match_lines(*index.v_, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
 
@@ -626,23 +628,26 @@ void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidT
   const int clusters = static_cast<int>((counts[0] > 0) + (counts[1] > 0) + (counts[2] > 0));
 
   const size_t n = pairs.size();
-  out->lines_a.reserve(n);
-  out->lines_b.reserve(n);
-  out->segments_a.reserve(n);
-  out->segments_b.reserve(n);
-  out->weights.reserve(n);
-  out->clusters.reserve(n);
+  // Inverse normal-cluster size (paper §6.3), scaled so that the weights average to 1 over all pairs. Pairs without a
+  // normal form no cluster: each weighs 1 (as a group of their own, a handful of them could carry a third of the
+  // weight and decide the motion, e.g. floor-wall seams in a corridor).
+  const double clustered = static_cast<double>(n - counts[3]);
+  std::array<double, 4> group_weight{1.0, 1.0, 1.0, 1.0};
+  for (int g = 0; g < 3; ++g)
+    if (counts[g] > 0) group_weight[g] = clustered / (clusters * counts[g]);
+  out->lines_a.resize(n);
+  out->lines_b.resize(n);
+  out->segments_a.resize(n);
+  out->segments_b.resize(n);
+  out->weights.resize(n);
+  out->clusters.resize(n);
   for (size_t i = 0; i < n; ++i) {
-    out->lines_a.push_back(pairs[i].a->line);
-    out->lines_b.push_back(pairs[i].b->line);
-    out->segments_a.push_back(pairs[i].a->segment);
-    out->segments_b.push_back(pairs[i].b->segment);
-    // Inverse normal-cluster size (paper §6.3), scaled so that the weights average to 1 over all pairs. Pairs
-    // without a normal form no cluster: each weighs 1 (as a group of their own, a handful of them could carry a
-    // third of the weight and decide the motion, e.g. floor-wall seams in a corridor).
-    const double clustered = static_cast<double>(n - counts[3]);
-    out->weights.push_back(group[i] == 3 ? 1.0 : clustered / (clusters * counts[group[i]]));
-    out->clusters.push_back(group[i] == 3 ? -1 : group[i]);
+    out->lines_a[i] = pairs[i].a->line;
+    out->lines_b[i] = pairs[i].b->line;
+    out->segments_a[i] = pairs[i].a->segment;
+    out->segments_b[i] = pairs[i].b->segment;
+    out->weights[i] = group_weight[group[i]];
+    out->clusters[i] = group[i] == 3 ? -1 : group[i];
   }
 
   const double min_cos_planes = std::cos(deg2rad(options.plane_max_angle_deg));
