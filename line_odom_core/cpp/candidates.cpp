@@ -263,7 +263,6 @@ size_t filter_partners(const PartnerColumns& c, const int* ids, size_t count, co
 struct CandidateIndex::Lines {
   std::vector<const LineFeature*> lines;
   PartnerColumns columns;
-  std::vector<PluckerLine> carriers;  // the lines through the segments (from their end points)
   std::vector<SegmentSpan> spans;     // the segments, for their distances
   double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
   // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
@@ -289,7 +288,6 @@ struct CandidateIndex::Lines {
   std::vector<int> listed_ids;
 
   explicit Lines(const std::vector<LineFeature>& all) : lines(usable(all)) {
-    carriers.resize(lines.size());
     spans.resize(lines.size());
     for (auto& c : box_columns) c.resize(lines.size());
     for (int k = 0; k < 3; ++k)
@@ -300,7 +298,6 @@ struct CandidateIndex::Lines {
       const LineFeature& l = *lines[i];
       const Vec3 box_lo = l.segment.a.cwiseMin(l.segment.b), box_hi = l.segment.a.cwiseMax(l.segment.b);
       const bool normal_known = l.normal.squaredNorm() > 0.25;
-      carriers[i] = l.segment.line();
       spans[i] = SegmentSpan::of(l.segment);
       for (int k = 0; k < 3; ++k) {
         columns.box_lo[k][i] = box_lo[k];
@@ -389,15 +386,14 @@ void mark_box_overlaps(const std::array<std::vector<float>, 6>& columns, const s
 // A partner whose box gap exceeds the k-th distance found so far (with a margin far above rounding) cannot be among
 // them and is not measured.
 void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, const SegmentSpan& sb,
-                      const PluckerLine& sb_carrier, double sb_magnitude, double max_distance, int k,
-                      std::vector<std::pair<double, int>>* best) {
+                      double sb_magnitude, double max_distance, int k, std::vector<std::pair<double, int>>* best) {
   best->clear();
   if (k <= 0) return;
   auto before = [](const std::pair<double, int>& x, const std::pair<double, int>& y) {
     return x.first < y.first || (x.first == y.first && x.second < y.second);
   };
   const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.magnitude);
-  double bound = std::numeric_limits<double>::infinity(), bound2 = bound;  // while fewer than k: measure all
+  double bound2 = std::numeric_limits<double>::infinity();  // squared k-th distance + margin (all until k found)
   auto measure = [&](int ia) {
     const double dist = span_distance(indexed.spans[ia], sb);
     if (!(dist <= max_distance)) return;
@@ -411,7 +407,7 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
     }
     for (size_t j = best->size() - 1; j > 0 && before((*best)[j], (*best)[j - 1]); --j) std::swap((*best)[j], (*best)[j - 1]);
     if (static_cast<int>(best->size()) == k) {
-      bound = best->back().first + margin;
+      const double bound = best->back().first + margin;
       bound2 = bound * bound;
     }
   };
@@ -430,13 +426,6 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
   for (size_t i = 0; i < n; ++i) {
     const Nearby& c = nearby[i];
     if (c.box_gap2 > bound2) continue;
-    if (bound2 != std::numeric_limits<double>::infinity()) {
-      // The distance between the lines through the segments bounds theirs too: |reciprocal product| / |sine|.
-      const PluckerLine& ca = indexed.carriers[c.ia];
-      const double f = std::abs(ca.d.dot(sb_carrier.m) + sb_carrier.d.dot(ca.m));
-      const double sine = ca.d.cross(sb_carrier.d).norm();
-      if (f > bound * sine * (1.0 + 1e-9) + margin) continue;
-    }
     measure(c.ia);
   }
 }
@@ -493,7 +482,6 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const double nb_norm = nb.norm();
     const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
     const double sb_magnitude = std::max(sb_lo.cwiseAbs().maxCoeff(), sb_hi.cwiseAbs().maxCoeff());
-    const PluckerLine sb_carrier = sb.line();
     const SegmentSpan sb_span = SegmentSpan::of(sb);
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
@@ -575,11 +563,11 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       // k partners lie within near_distance, no partner farther away can displace them.
       if (near_distance > 0.0 && near_distance < opt.max_distance) {
         gather(near_distance, near_grid);
-        closest_partners(nearby, nearby_count, indexed, sb_span, sb_carrier, sb_magnitude, near_distance, k, &best);
+        closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, near_distance, k, &best);
       }
       if (static_cast<int>(best.size()) < k) {
         gather(opt.max_distance, pass_grid());
-        closest_partners(nearby, nearby_count, indexed, sb_span, sb_carrier, sb_magnitude, opt.max_distance, k, &best);
+        closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, opt.max_distance, k, &best);
       }
     } else {
       gather(opt.max_distance, pass_grid());
