@@ -179,6 +179,14 @@ double span_distance(const SegmentSpan& s1, const SegmentSpan& s2) {
 }
 
 
+typedef float FloatLanes __attribute__((vector_size(16)));
+typedef int FloatLaneMask __attribute__((vector_size(16)));
+
+// A float box (rounded outwards) of a line of frame a: lo x y z and hi x y z, each padded to 4 lanes.
+struct FloatBox {
+  FloatLanes lo, hi;
+};
+
 // A partner that passed the filters, with the squared gap between the bounding boxes (a lower bound of the
 // squared segment distance).
 struct Nearby {
@@ -267,6 +275,7 @@ struct CandidateIndex::Lines {
   double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
   // The boxes as float columns (lo x y z, hi x y z), rounded outwards: a vectorizable prefilter.
   std::array<std::vector<float>, 6> box_columns;
+  std::vector<FloatBox> float_boxes;  // the same boxes by line (the re-test of listed lines reads one at a time)
   bool have_bounds = false;  // bounds of the segments, for the grids
   Vec3 lo, hi;
   // Grids built on first use (small frames are matched without), kept for any later pass that needs their cells.
@@ -290,6 +299,7 @@ struct CandidateIndex::Lines {
   explicit Lines(const std::vector<LineFeature>& all) : lines(usable(all)) {
     spans.resize(lines.size());
     for (auto& c : box_columns) c.resize(lines.size());
+    float_boxes.resize(lines.size());
     for (int k = 0; k < 3; ++k)
       for (auto* column : {&columns.box_lo[k], &columns.box_hi[k], &columns.d[k], &columns.normal[k]})
         column->resize(lines.size());
@@ -308,6 +318,8 @@ struct CandidateIndex::Lines {
         box_columns[3 + k][i] = round_up(box_hi[k]);
       }
       columns.normal_norm[i] = normal_known ? l.normal.norm() : 0.0;
+      float_boxes[i].lo = FloatLanes{box_columns[0][i], box_columns[1][i], box_columns[2][i], 0.0f};
+      float_boxes[i].hi = FloatLanes{box_columns[3][i], box_columns[4][i], box_columns[5][i], 0.0f};
       magnitude = std::max({magnitude, box_lo.cwiseAbs().maxCoeff(), box_hi.cwiseAbs().maxCoeff()});
     }
     have_bounds = SegmentGrid::bounds(lines, &lo, &hi);
@@ -512,13 +524,13 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
         if (!listing && reach[0] <= listed[0] && reach[1] <= listed[1] && reach[2] <= listed[2] &&
             reach[3] >= listed[3] && reach[4] >= listed[4] && reach[5] >= listed[5]) {
           // Every box reaching into `reach` reaches into the listed reach: re-test the listed boxes.
-          const auto& box = indexed.box_columns;
           const auto [begin, end] = indexed.listed_range[ib];
+          const FloatLanes reach_hi = {reach[0], reach[1], reach[2], 0.0f}, reach_lo = {reach[3], reach[4], reach[5], 0.0f};
           for (int e = begin; e < end; ++e) {
             const int ia = indexed.listed_ids[e];
+            const FloatLaneMask inside = (indexed.float_boxes[ia].lo <= reach_hi) & (indexed.float_boxes[ia].hi >= reach_lo);
             ids[id_count] = ia;
-            id_count += (box[0][ia] <= reach[0]) & (box[1][ia] <= reach[1]) & (box[2][ia] <= reach[2]) &
-                        (box[3][ia] >= reach[3]) & (box[4][ia] >= reach[4]) & (box[5][ia] >= reach[5]);
+            id_count += (inside[0] & inside[1] & inside[2]) != 0;
           }
         } else {
           mark_box_overlaps(indexed.box_columns, reach, overlap);
