@@ -126,25 +126,26 @@ void residual_kernel(const Rows rows, const double* weights, const FlatMotion mo
 
 LinePairTable::LinePairTable(const Correspondences& data)
     : n_(static_cast<int>(std::min(data.lines_a.size(), data.lines_b.size()))) {
-  coords_.resize(12 * static_cast<size_t>(n_));
-  weights_.assign(n_, 1.0);
-  const bool weighted = data.weights.size() == static_cast<size_t>(n_);
-  for (int i = 0; i < n_; ++i) {
+  const size_t n = static_cast<size_t>(n_);
+  rows_.reset(new double[13 * n]);
+  double* rows = rows_.get();
+  const bool weighted = data.weights.size() == n;
+  for (size_t i = 0; i < n; ++i) {
     const PluckerLine& a = data.lines_a[i];
     const PluckerLine& b = data.lines_b[i];
-    for (int k = 0; k < 3; ++k) {
-      coords_[static_cast<size_t>(k) * n_ + i] = a.d[k];
-      coords_[static_cast<size_t>(3 + k) * n_ + i] = a.m[k];
-      coords_[static_cast<size_t>(6 + k) * n_ + i] = b.d[k];
-      coords_[static_cast<size_t>(9 + k) * n_ + i] = b.m[k];
+    for (size_t k = 0; k < 3; ++k) {
+      rows[k * n + i] = a.d[k];
+      rows[(3 + k) * n + i] = a.m[k];
+      rows[(6 + k) * n + i] = b.d[k];
+      rows[(9 + k) * n + i] = b.m[k];
     }
-    if (weighted) weights_[i] = data.weights[i];
+    rows[12 * n + i] = weighted ? data.weights[i] : 1.0;
   }
 }
 
 void LinePairTable::inlier_mask(const RigidTransform& T, double threshold, double min_sine, int begin, int end,
                                 std::uint8_t* mask) const {
-  mask_kernel(rows_of(coords_.data(), n_), flatten(T), threshold * threshold, min_sine * min_sine, std::max(0, begin),
+  mask_kernel(rows_of(rows_.get(), n_), flatten(T), threshold * threshold, min_sine * min_sine, std::max(0, begin),
               std::min(end, n_), mask);
 }
 
@@ -153,7 +154,7 @@ int LinePairTable::residual_block(const RigidTransform& T, double threshold, dou
   const int last = std::min({end, n_, begin + LineResidualBlock::kSize});
   out->used_count = 0;
   if (last <= begin) return 0;
-  residual_kernel(rows_of(coords_.data(), n_), weights_.data(), flatten(T), threshold * threshold,
+  residual_kernel(rows_of(rows_.get(), n_), weights(), flatten(T), threshold * threshold,
                   min_sine * min_sine, begin, last, out);
   return last - begin;
 }

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "motion_estimation.hpp"
@@ -35,8 +36,8 @@ class LinePairTable {
   explicit LinePairTable(const Correspondences& data);
 
   int size() const { return n_; }
-  double weight(int i) const { return weights_[i]; }
-  const double* weights() const { return weights_.data(); }
+  double weight(int i) const { return row(12)[i]; }
+  const double* weights() const { return row(12); }
   Vec3 a_d(int i) const { return {row(0)[i], row(1)[i], row(2)[i]}; }
   Vec3 a_m(int i) const { return {row(3)[i], row(4)[i], row(5)[i]}; }
 
@@ -49,10 +50,10 @@ class LinePairTable {
                      LineResidualBlock* out) const;
 
  private:
-  const double* row(int r) const { return coords_.data() + static_cast<size_t>(r) * n_; }
+  const double* row(int r) const { return rows_.get() + static_cast<size_t>(r) * n_; }
   int n_ = 0;
-  std::vector<double> coords_;  // 12 rows of n: d_a, m_a, d_b, m_b (x y z each)
-  std::vector<double> weights_;
+  std::unique_ptr<double[]> rows_;  // 13 rows of n: d_a, m_a, d_b, m_b (x y z each), weight; written once, so
+                                    // not zeroed first
 };
 
 // Weighted count of pairs that meet within `threshold` under T_ab (paper §6.3 inlier counting); pairs closer to
