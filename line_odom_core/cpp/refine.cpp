@@ -44,14 +44,15 @@ struct NormalEquations {
 // scalar sum bit for bit; the lanes only let one instruction update several of the normal equations' sums).
 typedef double Lanes4 __attribute__((vector_size(32)));
 
-// The line pairs' sums of NormalEquations, lane by lane: H(row, col) of the lower triangle in `h`, g in `g` and
-// `g45_sq_h55`, the scalar sums in `weights_sq`.
+// The line pairs' sums of NormalEquations in lanes: column c < 4 of H, rows 0..3, in h_col[c] (the rows above the
+// diagonal unused); rows 4, 5 of columns (0, 1), (2, 3), (4, 5) in h_rows45[0..2] as (4,c) (5,c) (4,c+1) (5,c+1);
+// g 0..3 in g0123; g 4, g 5 and weighted_sq in g45_sq; weight_sum, line_inlier_weight, line_sq in weights_sq.
 struct LineSums {
-  Lanes4 h[5] = {};      // (0,0) (1,0) (2,0) (3,0) | (1,1) (2,1) (3,1) (4,1) | (2,2) (3,2) (4,2) (5,2) |
-                         // (3,3) (4,3) (5,3) (4,4) | (4,0) (5,0) (5,1) (5,4)
-  Lanes4 g = {};         // g 0..3
-  Lanes4 g45_sq_h55 = {};  // g 4, g 5, weighted_sq, H(5,5)
-  Lanes4 weights_sq = {};  // weight_sum, line_inlier_weight, line_sq, 0
+  Lanes4 h_col[4] = {};
+  Lanes4 h_rows45[3] = {};
+  Lanes4 g0123 = {};
+  Lanes4 g45_sq = {};
+  Lanes4 weights_sq = {};
 };
 
 // H += w J J^T, g += w r J and the sums over the used pairs of a block, in pair order: each sum adds the same
@@ -59,31 +60,39 @@ struct LineSums {
 LINE_ODOM_VECTOR_CLONES
 void accumulate_lines(const LineResidualBlock& block, const double* pair_weights, double weight_scale, double huber,
                       LineSums* sums) {
-  Lanes4 h0 = sums->h[0], h1 = sums->h[1], h2 = sums->h[2], h3 = sums->h[3], h4 = sums->h[4];
-  Lanes4 g = sums->g, g45_sq_h55 = sums->g45_sq_h55, weights_sq = sums->weights_sq;
+  Lanes4 h_col0 = sums->h_col[0], h_col1 = sums->h_col[1], h_col2 = sums->h_col[2], h_col3 = sums->h_col[3];
+  Lanes4 h_rows45_01 = sums->h_rows45[0], h_rows45_23 = sums->h_rows45[1], h_rows45_45 = sums->h_rows45[2];
+  Lanes4 g0123 = sums->g0123, g45_sq = sums->g45_sq, weights_sq = sums->weights_sq;
   for (int u = 0; u < block.used_count; ++u) {
     const int k = block.used[u];
     const double w_pair = pair_weights[k];
     const double inv_s = 1.0 / std::sqrt(block.s2[k]);  // one division per pair, not seven
     const double r = block.f[k] * inv_s;
-    // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held.
-    const double J0 = -inv_s * block.c[0][k], J1 = -inv_s * block.c[1][k], J2 = -inv_s * block.c[2][k];
-    const double J3 = inv_s * block.e[0][k], J4 = inv_s * block.e[1][k], J5 = inv_s * block.e[2][k];
+    // d f / d(v, w) for d'' = d' + w x d', m'' = m' + w x m' + v x d' (left perturbation), |d_a x d''| held:
+    // J = (-c / s, e / s); J0123 = J 0..3, J45r = (J 4, J 5, r, 0).
+    const Lanes4 J0123 = Lanes4{-inv_s, -inv_s, -inv_s, inv_s} *
+                         Lanes4{block.c[0][k], block.c[1][k], block.c[2][k], block.e[0][k]};
+    const Lanes4 J45r = Lanes4{inv_s, inv_s, inv_s, 0.0} * Lanes4{block.e[1][k], block.e[2][k], block.f[k], 0.0};
     const double w_scaled = w_pair * weight_scale;
     const double w = w_scaled * huber_weight(std::abs(r), huber);
-    const double wJ0 = w * J0, wJ1 = w * J1, wJ2 = w * J2, wJ3 = w * J3, wJ4 = w * J4, wJ5 = w * J5;
-    const double wr = w * r;
-    h0 += Lanes4{wJ0, wJ0, wJ0, wJ0} * Lanes4{J0, J1, J2, J3};
-    h1 += Lanes4{wJ1, wJ1, wJ1, wJ1} * Lanes4{J1, J2, J3, J4};
-    h2 += Lanes4{wJ2, wJ2, wJ2, wJ2} * Lanes4{J2, J3, J4, J5};
-    h3 += Lanes4{wJ3, wJ3, wJ3, wJ4} * Lanes4{J3, J4, J5, J4};
-    h4 += Lanes4{wJ0, wJ0, wJ1, wJ4} * Lanes4{J4, J5, J5, J5};
-    g += Lanes4{wr, wr, wr, wr} * Lanes4{J0, J1, J2, J3};
-    g45_sq_h55 += Lanes4{wr, wr, wr, wJ5} * Lanes4{J4, J5, r, J5};
+    const Lanes4 wJ0123 = w * J0123;
+    const Lanes4 wJ45r = w * J45r;  // (w J 4, w J 5, w r, 0)
+    h_col0 += Lanes4{wJ0123[0], wJ0123[0], wJ0123[0], wJ0123[0]} * J0123;
+    h_col1 += Lanes4{wJ0123[1], wJ0123[1], wJ0123[1], wJ0123[1]} * J0123;
+    h_col2 += Lanes4{wJ0123[2], wJ0123[2], wJ0123[2], wJ0123[2]} * J0123;
+    h_col3 += Lanes4{wJ0123[3], wJ0123[3], wJ0123[3], wJ0123[3]} * J0123;
+    const Lanes4 J4545 = Lanes4{J45r[0], J45r[1], J45r[0], J45r[1]};
+    h_rows45_01 += Lanes4{wJ0123[0], wJ0123[0], wJ0123[1], wJ0123[1]} * J4545;
+    h_rows45_23 += Lanes4{wJ0123[2], wJ0123[2], wJ0123[3], wJ0123[3]} * J4545;
+    h_rows45_45 += Lanes4{wJ45r[0], wJ45r[0], wJ45r[1], wJ45r[1]} * J4545;
+    const Lanes4 wr = Lanes4{wJ45r[2], wJ45r[2], wJ45r[2], wJ45r[2]};
+    g0123 += wr * J0123;
+    g45_sq += wr * J45r;  // (w r J 4, w r J 5, w r r, 0)
     weights_sq += Lanes4{w_scaled, w_pair, r * r, 0.0};
   }
-  sums->h[0] = h0, sums->h[1] = h1, sums->h[2] = h2, sums->h[3] = h3, sums->h[4] = h4;
-  sums->g = g, sums->g45_sq_h55 = g45_sq_h55, sums->weights_sq = weights_sq;
+  sums->h_col[0] = h_col0, sums->h_col[1] = h_col1, sums->h_col[2] = h_col2, sums->h_col[3] = h_col3;
+  sums->h_rows45[0] = h_rows45_01, sums->h_rows45[1] = h_rows45_23, sums->h_rows45[2] = h_rows45_45;
+  sums->g0123 = g0123, sums->g45_sq = g45_sq, sums->weights_sq = weights_sq;
 }
 
 NormalEquations accumulate(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T,
@@ -97,13 +106,16 @@ NormalEquations accumulate(const Correspondences& data, const LinePairTable& pai
     accumulate_lines(block, pairs.weights() + begin, weight_scale, huber, &sums);
     ne.line_inliers += block.used_count;
   }
-  constexpr int kLowerRow[5][4] = {{0, 1, 2, 3}, {1, 2, 3, 4}, {2, 3, 4, 5}, {3, 4, 5, 4}, {4, 5, 5, 5}};
-  constexpr int kLowerCol[5][4] = {{0, 0, 0, 0}, {1, 1, 1, 1}, {2, 2, 2, 2}, {3, 3, 3, 4}, {0, 0, 1, 4}};
-  for (int v = 0; v < 5; ++v)
-    for (int lane = 0; lane < 4; ++lane) ne.H(kLowerRow[v][lane], kLowerCol[v][lane]) = sums.h[v][lane];
-  ne.H(5, 5) = sums.g45_sq_h55[3];
-  ne.g << sums.g[0], sums.g[1], sums.g[2], sums.g[3], sums.g45_sq_h55[0], sums.g45_sq_h55[1];
-  ne.weighted_sq = sums.g45_sq_h55[2];
+  for (int col = 0; col < 4; ++col)
+    for (int row = col; row < 4; ++row) ne.H(row, col) = sums.h_col[col][row];
+  for (int cols = 0; cols < 3; ++cols) {
+    ne.H(4, 2 * cols) = sums.h_rows45[cols][0];
+    ne.H(5, 2 * cols) = sums.h_rows45[cols][1];
+    if (cols < 2) ne.H(4, 2 * cols + 1) = sums.h_rows45[cols][2];
+    ne.H(5, 2 * cols + 1) = sums.h_rows45[cols][3];
+  }
+  ne.g << sums.g0123[0], sums.g0123[1], sums.g0123[2], sums.g0123[3], sums.g45_sq[0], sums.g45_sq[1];
+  ne.weighted_sq = sums.g45_sq[2];
   ne.weight_sum = sums.weights_sq[0];
   ne.line_inlier_weight = sums.weights_sq[1];
   ne.line_sq = sums.weights_sq[2];
