@@ -9,6 +9,10 @@
 #include <limits>
 #include <utility>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace line_odom {
 
 namespace {
@@ -181,6 +185,15 @@ double span_distance(const SegmentSpan& s1, const SegmentSpan& s2) {
 
 typedef float FloatLanes __attribute__((vector_size(16)));
 typedef int FloatLaneMask __attribute__((vector_size(16)));
+
+// Whether lanes x, y and z of a compare hold true.
+inline bool all_of_xyz(FloatLaneMask m) {
+#if defined(__SSE2__)
+  return (_mm_movemask_ps(reinterpret_cast<__m128>(m)) & 7) == 7;
+#else
+  return (m[0] & m[1] & m[2]) != 0;
+#endif
+}
 
 // A float box (rounded outwards) of a line of frame a: lo x y z and hi x y z, each padded to 4 lanes.
 struct FloatBox {
@@ -530,7 +543,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
             const int ia = indexed.listed_ids[e];
             const FloatLaneMask inside = (indexed.float_boxes[ia].lo <= reach_hi) & (indexed.float_boxes[ia].hi >= reach_lo);
             ids[id_count] = ia;
-            id_count += (inside[0] & inside[1] & inside[2]) != 0;
+            id_count += all_of_xyz(inside);
           }
         } else {
           mark_box_overlaps(indexed.box_columns, reach, overlap);
