@@ -78,8 +78,15 @@ void prepare(const Correspondences& in, const RigidTransform& init, std::uint64_
   std::vector<int> order;
   order.reserve(n);
   std::vector<PluckerLine> la(n), lb(n);
+  bool b_ok = false;
   for (size_t i = 0; i < n; ++i) {
-    bool ok = normalize_line(in.lines_a[i], &la[i]) && normalize_line(in.lines_b[i], &lb[i]);
+    // Candidates list the partners of a line of b one after the other: a line of b equal bit for bit to the
+    // previous pair's is normalized once.
+    if (i == 0 || std::memcmp(&in.lines_b[i], &in.lines_b[i - 1], sizeof(PluckerLine)) != 0)
+      b_ok = normalize_line(in.lines_b[i], &lb[i]);
+    else
+      lb[i] = lb[i - 1];
+    bool ok = normalize_line(in.lines_a[i], &la[i]) && b_ok;
     if (has_weights) ok = ok && std::isfinite(in.weights[i]) && in.weights[i] >= 0.0;
     if (has_segments) {
       const Segment &sa = in.segments_a[i], &sb = in.segments_b[i];
