@@ -278,6 +278,41 @@ size_t filter_partners(const PartnerColumns& c, const int* ids, size_t count, co
   return kept;
 }
 
+// span_distance of the spans `ids[0..3]` of frame a to `b`, into distances[0..3]: lane by lane the same operations
+// in the same order, the branches as selects. Requires b.d2 > 1e-18 (span_distance otherwise).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+void span_distances(const SegmentSpan* spans, const int* ids, const SegmentSpan& b, double* distances) {
+  const SegmentSpan &s0 = spans[ids[0]], &s1 = spans[ids[1]], &s2 = spans[ids[2]], &s3 = spans[ids[3]];
+  const Lanes zero = {0.0, 0.0, 0.0, 0.0}, one = {1.0, 1.0, 1.0, 1.0};
+  auto clamp01 = [&](Lanes v) { return v < zero ? zero : (one < v ? one : v); };
+  Lanes start[3], d[3];
+  for (int k = 0; k < 3; ++k) {
+    start[k] = Lanes{s0.start[k], s1.start[k], s2.start[k], s3.start[k]};
+    d[k] = Lanes{s0.d[k], s1.d[k], s2.d[k], s3.d[k]};
+  }
+  const Lanes a = {s0.d2, s1.d2, s2.d2, s3.d2};
+  const double e = b.d2;
+  const Lanes r_x = start[0] - b.start[0], r_y = start[1] - b.start[1], r_z = start[2] - b.start[2];
+  const Lanes f = (b.d[0] * r_x + b.d[1] * r_y) + b.d[2] * r_z;
+  const Lanes c = (d[0] * r_x + d[1] * r_y) + d[2] * r_z;
+  const Lanes bd = (d[0] * b.d[0] + d[1] * b.d[1]) + d[2] * b.d[2];
+  const Lanes denom = a * e - bd * bd;
+  const Lanes s_free = denom > 1e-18 * a * e ? clamp01((bd * f - c * e) / denom) : zero;
+  const Lanes t_free = (bd * s_free + f) / e;
+  const Lanes s_general = t_free < zero ? clamp01(-c / a) : (t_free > one ? clamp01((bd - c) / a) : s_free);
+  const Lanes t_general = t_free < zero ? zero : (t_free > one ? one : t_free);
+  const auto point_a = a <= 1e-18;  // a point: the closest point of b to it
+  const Lanes s = point_a ? zero : s_general;
+  const Lanes t = point_a ? clamp01(f / e) : t_general;
+  const Lanes p_x = (start[0] + d[0] * s) - (b.start[0] + b.d[0] * t);
+  const Lanes p_y = (start[1] + d[1] * s) - (b.start[1] + b.d[1] * t);
+  const Lanes p_z = (start[2] + d[2] * s) - (b.start[2] + b.d[2] * t);
+  const Lanes norm2 = (p_x * p_x + p_y * p_y) + p_z * p_z;
+  for (int l = 0; l < 4; ++l) distances[l] = std::sqrt(norm2[l]);
+}
+
 }  // namespace
 
 // The usable lines of one kind (H or V) of frame a with their records, grids and the work buffers of a match.
@@ -388,6 +423,16 @@ namespace {
 
 using IndexedLines = CandidateIndex::Lines;
 
+// The distances of sb to the segments of `count` (1 to 4) lines `ids` of frame a.
+void measure_group(const IndexedLines& indexed, const int* ids, int count, const SegmentSpan& sb, double* distances) {
+  if (sb.d2 > 1e-18) {
+    const int lanes[4] = {ids[0], ids[std::min(1, count - 1)], ids[std::min(2, count - 1)], ids[std::min(3, count - 1)]};
+    span_distances(indexed.spans.data(), lanes, sb, distances);
+  } else {
+    for (int l = 0; l < count; ++l) distances[l] = span_distance(indexed.spans[ids[l]], sb);
+  }
+}
+
 // overlap[i] = 1 where box i (float columns lo x y z, hi x y z) reaches into `reach` (hi x y z, lo x y z).
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 __attribute__((target_clones("avx2", "default")))
@@ -419,8 +464,7 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
   };
   const double margin = 1e-9 + 1e-12 * (sb_magnitude + indexed.magnitude);
   double bound2 = std::numeric_limits<double>::infinity();  // squared k-th distance + margin (all until k found)
-  auto measure = [&](int ia) {
-    const double dist = span_distance(indexed.spans[ia], sb);
+  auto take = [&](double dist, int ia) {
     if (!(dist <= max_distance)) return;
     const std::pair<double, int> p{dist, ia};
     if (static_cast<int>(best->size()) < k) {
@@ -436,6 +480,20 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
       bound2 = bound * bound;
     }
   };
+  // Measured four at a time (a bound a few measurements old only measures more).
+  int group[4];
+  int grouped = 0;
+  auto flush = [&]() {
+    if (grouped == 0) return;
+    double distances[4];
+    measure_group(indexed, group, grouped, sb, distances);
+    for (int l = 0; l < grouped; ++l) take(distances[l], group[l]);
+    grouped = 0;
+  };
+  auto measure = [&](int ia) {
+    group[grouped++] = ia;
+    if (grouped == 4) flush();
+  };
   const size_t first = std::min(n, static_cast<size_t>(k));
   if (n > first) {
     // Measure the k smallest box gaps first: their distances bound the k-th distance from the start. Kept sorted
@@ -448,11 +506,14 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
       for (size_t j = first - 1; j > 0 && nearby[j].box_gap2 < nearby[j - 1].box_gap2; --j) std::swap(nearby[j], nearby[j - 1]);
     }
   }
-  for (size_t i = 0; i < n; ++i) {
+  for (size_t i = 0; i < first; ++i) measure(nearby[i].ia);
+  flush();
+  for (size_t i = first; i < n; ++i) {
     const Nearby& c = nearby[i];
     if (c.box_gap2 > bound2) continue;
     measure(c.ia);
   }
+  flush();
 }
 
 // Pairs of lines of frame a (indexed) with lines_b (frame b, moved into a by T) that pass the filters.
@@ -596,10 +657,14 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       }
     } else {
       gather(opt.max_distance, pass_grid());
-      for (size_t i = 0; i < nearby_count; ++i) {
-        const Nearby& c = nearby[i];
-        const double dist = span_distance(indexed.spans[c.ia], sb_span);
-        if (dist <= opt.max_distance) best.emplace_back(dist, c.ia);
+      for (size_t i = 0; i < nearby_count; i += 4) {
+        const int count = static_cast<int>(std::min<size_t>(4, nearby_count - i));
+        int ids[4];
+        double distances[4];
+        for (int l = 0; l < count; ++l) ids[l] = nearby[i + l].ia;
+        measure_group(indexed, ids, count, sb_span, distances);
+        for (int l = 0; l < count; ++l)
+          if (distances[l] <= opt.max_distance) best.emplace_back(distances[l], ids[l]);
       }
     }
     // Deterministic order regardless of grid traversal: by line of frame a.
