@@ -232,8 +232,22 @@ struct PartnerQuery {
   double min_cos_normals;  // |cos| of the largest angle between known normals
 };
 
+// Four lanes of doubles (GCC vector extensions: AVX2 registers in the avx2 clones, SSE2 pairs in the default ones).
+// (The helpers are always inlined: no vector crosses a call, whose ABI differs between the clones.)
+#pragma GCC diagnostic ignored "-Wpsabi"
 typedef double Lanes __attribute__((vector_size(32)));
 typedef long long LaneMask __attribute__((vector_size(32)));
+
+inline __attribute__((always_inline)) Lanes lanes_at(const std::vector<double>& column, const int* ids) {
+  const double* p = column.data();
+  return Lanes{p[ids[0]], p[ids[1]], p[ids[2]], p[ids[3]]};
+}
+inline __attribute__((always_inline)) Lanes absolute(const Lanes& v) { return v < 0.0 ? -v : v; }
+inline __attribute__((always_inline)) Lanes larger(const Lanes& x, const Lanes& y) { return x > y ? x : y; }
+inline __attribute__((always_inline)) Lanes clamp01(const Lanes& v) {
+  const Lanes zero = {0.0, 0.0, 0.0, 0.0}, one = {1.0, 1.0, 1.0, 1.0};
+  return v < zero ? zero : (one < v ? one : v);  // std::clamp(v, 0.0, 1.0)
+}
 
 // The lines `ids` (count of them, readable up to a whole multiple of 4) of frame a that pass the filters of `q`,
 // written to `out` with their squared box gaps; returns how many. The same sums in the same order as the scalar
@@ -246,25 +260,21 @@ size_t filter_partners(const PartnerColumns& c, const int* ids, size_t count, co
   size_t kept = 0;
   const Lanes zero = {0.0, 0.0, 0.0, 0.0};
   for (size_t i = 0; i < count; i += 4) {
-    const int i0 = ids[i], i1 = ids[i + 1], i2 = ids[i + 2], i3 = ids[i + 3];
-    auto column = [&](const std::vector<double>& v) {
-      const double* p = v.data();
-      return Lanes{p[i0], p[i1], p[i2], p[i3]};
-    };
-    auto absolute = [](Lanes v) { return v < 0.0 ? -v : v; };
-    auto larger = [](Lanes x, Lanes y) { return x > y ? x : y; };
-    const Lanes lo_x = column(c.box_lo[0]) - q.box_hi[0], lo_y = column(c.box_lo[1]) - q.box_hi[1],
-                lo_z = column(c.box_lo[2]) - q.box_hi[2];
-    const Lanes hi_x = q.box_lo[0] - column(c.box_hi[0]), hi_y = q.box_lo[1] - column(c.box_hi[1]),
-                hi_z = q.box_lo[2] - column(c.box_hi[2]);
+    const int* const group = ids + i;
+    const Lanes lo_x = lanes_at(c.box_lo[0], group) - q.box_hi[0], lo_y = lanes_at(c.box_lo[1], group) - q.box_hi[1],
+                lo_z = lanes_at(c.box_lo[2], group) - q.box_hi[2];
+    const Lanes hi_x = q.box_lo[0] - lanes_at(c.box_hi[0], group), hi_y = q.box_lo[1] - lanes_at(c.box_hi[1], group),
+                hi_z = q.box_lo[2] - lanes_at(c.box_hi[2], group);
     LaneMask reject = (lo_x > q.box_gap) | (lo_y > q.box_gap) | (lo_z > q.box_gap) | (hi_x > q.box_gap) |
                       (hi_y > q.box_gap) | (hi_z > q.box_gap);
-    const Lanes d_dot = (column(c.d[0]) * q.d[0] + column(c.d[1]) * q.d[1]) + column(c.d[2]) * q.d[2];
+    const Lanes d_dot =
+        (lanes_at(c.d[0], group) * q.d[0] + lanes_at(c.d[1], group) * q.d[1]) + lanes_at(c.d[2], group) * q.d[2];
     reject |= absolute(d_dot) > q.max_cos_lines;
     if (q.normal_known) {
       const Lanes n_dot =
-          (column(c.normal[0]) * q.normal[0] + column(c.normal[1]) * q.normal[1]) + column(c.normal[2]) * q.normal[2];
-      reject |= absolute(n_dot) / (column(c.normal_norm) * q.normal_norm) < q.min_cos_normals;
+          (lanes_at(c.normal[0], group) * q.normal[0] + lanes_at(c.normal[1], group) * q.normal[1]) +
+          lanes_at(c.normal[2], group) * q.normal[2];
+      reject |= absolute(n_dot) / (lanes_at(c.normal_norm, group) * q.normal_norm) < q.min_cos_normals;
     }
     const Lanes gap_x = larger(larger(lo_x, hi_x), zero), gap_y = larger(larger(lo_y, hi_y), zero),
                 gap_z = larger(larger(lo_z, hi_z), zero);
@@ -286,7 +296,6 @@ __attribute__((target_clones("avx2", "default")))
 void span_distances(const SegmentSpan* spans, const int* ids, const SegmentSpan& b, double* distances) {
   const SegmentSpan &s0 = spans[ids[0]], &s1 = spans[ids[1]], &s2 = spans[ids[2]], &s3 = spans[ids[3]];
   const Lanes zero = {0.0, 0.0, 0.0, 0.0}, one = {1.0, 1.0, 1.0, 1.0};
-  auto clamp01 = [&](Lanes v) { return v < zero ? zero : (one < v ? one : v); };
   Lanes start[3], d[3];
   for (int k = 0; k < 3; ++k) {
     start[k] = Lanes{s0.start[k], s1.start[k], s2.start[k], s3.start[k]};
@@ -426,7 +435,8 @@ using IndexedLines = CandidateIndex::Lines;
 // The distances of sb to the segments of `count` (1 to 4) lines `ids` of frame a.
 void measure_group(const IndexedLines& indexed, const int* ids, int count, const SegmentSpan& sb, double* distances) {
   if (sb.d2 > 1e-18) {
-    const int lanes[4] = {ids[0], ids[std::min(1, count - 1)], ids[std::min(2, count - 1)], ids[std::min(3, count - 1)]};
+    const int last = count - 1;
+    const int lanes[4] = {ids[0], ids[std::min(1, last)], ids[std::min(2, last)], ids[std::min(3, last)]};
     span_distances(indexed.spans.data(), lanes, sb, distances);
   } else {
     for (int l = 0; l < count; ++l) distances[l] = span_distance(indexed.spans[ids[l]], sb);
@@ -474,7 +484,8 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
     } else {
       return;
     }
-    for (size_t j = best->size() - 1; j > 0 && before((*best)[j], (*best)[j - 1]); --j) std::swap((*best)[j], (*best)[j - 1]);
+    for (size_t j = best->size() - 1; j > 0 && before((*best)[j], (*best)[j - 1]); --j)
+      std::swap((*best)[j], (*best)[j - 1]);
     if (static_cast<int>(best->size()) == k) {
       const double bound = best->back().first + margin;
       bound2 = bound * bound;
@@ -503,7 +514,8 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
     for (size_t i = first; i < n; ++i) {
       if (!(nearby[i].box_gap2 < nearby[first - 1].box_gap2)) continue;
       std::swap(nearby[i], nearby[first - 1]);
-      for (size_t j = first - 1; j > 0 && nearby[j].box_gap2 < nearby[j - 1].box_gap2; --j) std::swap(nearby[j], nearby[j - 1]);
+      for (size_t j = first - 1; j > 0 && nearby[j].box_gap2 < nearby[j - 1].box_gap2; --j)
+        std::swap(nearby[j], nearby[j - 1]);
     }
   }
   for (size_t i = 0; i < first; ++i) measure(nearby[i].ia);
@@ -599,10 +611,12 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
             reach[3] >= listed[3] && reach[4] >= listed[4] && reach[5] >= listed[5]) {
           // Every box reaching into `reach` reaches into the listed reach: re-test the listed boxes.
           const auto [begin, end] = indexed.listed_range[ib];
-          const FloatLanes reach_hi = {reach[0], reach[1], reach[2], 0.0f}, reach_lo = {reach[3], reach[4], reach[5], 0.0f};
+          const FloatLanes reach_hi = {reach[0], reach[1], reach[2], 0.0f};
+          const FloatLanes reach_lo = {reach[3], reach[4], reach[5], 0.0f};
           for (int e = begin; e < end; ++e) {
             const int ia = indexed.listed_ids[e];
-            const FloatLaneMask inside = (indexed.float_boxes[ia].lo <= reach_hi) & (indexed.float_boxes[ia].hi >= reach_lo);
+            const FloatBox& box = indexed.float_boxes[ia];
+            const FloatLaneMask inside = (box.lo <= reach_hi) & (box.hi >= reach_lo);
             ids[id_count] = ia;
             id_count += all_of_xyz(inside);
           }
