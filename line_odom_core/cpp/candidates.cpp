@@ -182,7 +182,6 @@ double span_distance(const SegmentSpan& s1, const SegmentSpan& s2) {
   return ((s1.start + d1 * s) - (s2.start + d2 * t)).norm();
 }
 
-
 typedef float FloatLanes __attribute__((vector_size(16)));
 typedef int FloatLaneMask __attribute__((vector_size(16)));
 
@@ -324,7 +323,8 @@ void span_distances(const SegmentSpan* spans, const int* ids, const SegmentSpan&
 
 }  // namespace
 
-// The usable lines of one kind (H or V) of frame a with their records, grids and the work buffers of a match.
+// The usable lines of one kind (H or V) of frame a with what the filters and distances read, their grids and the work
+// buffers of a match.
 struct CandidateIndex::Lines {
   std::vector<const LineFeature*> lines;
   PartnerColumns columns;
