@@ -124,9 +124,10 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("registration.pass_distance_scale", float, 1.0, "candidate distance multiplier from one pass to "
                 "the next (1 = the same threshold every pass)", 0.01, 1.0),
     ConfigEntry("registration.max_lines", int, 3000, "lines registered per scan: when more were fitted, only those "
-                "of every s-th row and column enter the registration, s the smallest step within this budget (all "
-                "rows and columns are still fitted and give the normals and planes; neighbouring rows on one surface "
-                "give nearly the same intersections). 0 = all", 0, 10000000),
+                "of every s-th row and column give normals, planes and the registration, s the smallest step within "
+                "this budget, and the next scan is fitted only on the rows and columns that step keeps (each line "
+                "still fitted to every point of its row or column; neighbouring rows on one surface give nearly the "
+                "same intersections). 0 = all", 0, 10000000),
     ConfigEntry("registration.first_motion_pairs_per_line", int, 0, "while there is no motion guess (the first "
                 "motion after start or reset, searched from standing still), keep the k closest partners of each line "
                 "within candidates.max_distance (0 = all of them, as in the paper; KITTI: 8, at half the cost)", 0,

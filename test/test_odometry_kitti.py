@@ -60,7 +60,8 @@ def test_full_resolution_frame_to_frame_error():
     data, results = run("07", 1, frames=3)
     t, r = relative_pose_errors(np.array([res.pose for res in results]), data.poses)
     assert t.mean() < BOUND_FULL_07[0] and r.mean() < BOUND_FULL_07[1], (t, r)
-    assert results[-1].stats["h_lines"] > 1000 and results[-1].stats["v_lines"] > 1000
+    assert results[0].stats["h_lines"] > 1000 and results[0].stats["v_lines"] > 1000  # every row and column
+    assert results[-1].stats["registered_lines"] > 2000  # every 4th row's and column's (registration.max_lines)
 
 
 def test_result_contract_and_pose_composition():

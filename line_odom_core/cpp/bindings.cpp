@@ -843,6 +843,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["points"] = s.points;
   d["h_lines"] = s.h_lines;
   d["v_lines"] = s.v_lines;
+  d["fit_step"] = s.fit_step;
   d["line_step"] = s.line_step;
   d["registered_lines"] = s.registered_lines;
   d["planes"] = s.planes;

@@ -5,6 +5,8 @@
 #include <ctime>
 #include <stdexcept>
 
+#include "line_selection.hpp"
+
 namespace line_odom {
 
 namespace {
@@ -123,11 +125,16 @@ void FeatureConfig::validate() const {
   planes.validate();
 }
 
-ScanFeatures extract_features(const RangeImage& image, const FeatureConfig& config, FeatureStats* stats) {
+ScanFeatures extract_features(const RangeImage& image, const FeatureConfig& config, FeatureStats* stats,
+                              int scan_step, int max_lines) {
   config.validate();
   FeatureStats st;
   auto t0 = feature_clock_now();
-  ScanLines lines = fit_scan_lines(image, config.lines);
+  ScanLines lines = fit_scan_lines(image, config.lines, scan_step);
+  st.fitted_h_lines = static_cast<int>(lines.h_lines.size());
+  st.fitted_v_lines = static_cast<int>(lines.v_lines.size());
+  st.line_step = registration_line_step(lines.h_lines, lines.v_lines, max_lines, scan_step);
+  keep_lines_every(st.line_step, &lines);
   st.lines_ms = ms_since(t0);
 
   t0 = feature_clock_now();

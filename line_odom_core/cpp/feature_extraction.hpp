@@ -26,6 +26,8 @@ struct FeatureConfig {
 };
 
 struct FeatureStats {
+  int fitted_h_lines = 0, fitted_v_lines = 0;  // before the budget (line_selection.hpp)
+  int line_step = 1;                           // lines of every line_step-th row and column kept
   int h_lines = 0;
   int v_lines = 0;
   int lines_with_normal = 0;
@@ -45,6 +47,9 @@ std::vector<std::pair<std::string, double>> feature_config_fields(const FeatureC
 // representable (non-integer for an int field, not 0/1 for a bool). Call validate() after the last one.
 void set_feature_config_field(FeatureConfig* config, const std::string& name, double value);
 
-ScanFeatures extract_features(const RangeImage& image, const FeatureConfig& config, FeatureStats* stats = nullptr);
+// Lines fitted on every scan_step-th row and column; past max_lines (0: no budget) only those of every s-th row and
+// column are kept for normals, planes and the result (line_selection.hpp).
+ScanFeatures extract_features(const RangeImage& image, const FeatureConfig& config, FeatureStats* stats = nullptr,
+                              int scan_step = 1, int max_lines = 0);
 
 }  // namespace line_odom

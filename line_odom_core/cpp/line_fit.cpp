@@ -794,9 +794,10 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
 // The lines of every row (horizontal) or every column; everything it calls is inlined into its two clones.
 LINE_FIT_CLONES_FLATTEN void fit_pass(
     const RangeImage& image, const CellThresholds& thresholds, bool horizontal, int min_points,
-    ScanLineFitter& fitter, ScanBuffer& buf, std::vector<LineFeature>* out, std::vector<std::int32_t>* labels) {
+    ScanLineFitter& fitter, ScanBuffer& buf, std::vector<LineFeature>* out, std::vector<std::int32_t>* labels,
+    int scan_step) {
   const int scans = horizontal ? image.rows : image.cols;
-  for (int i = 0; i < scans; ++i) {
+  for (int i = 0; i < scans; i += scan_step) {
     fill_buffer(image, thresholds, horizontal, i, &buf);
     fitter.fit(buf, min_points, i, out, labels);
   }
@@ -940,8 +941,9 @@ LineLeastSquares fit_line(const PointMoments& moments) {
   return fit_line(moments, C.col(k), 6);
 }
 
-ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
+ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config, int scan_step) {
   config.validate();
+  if (scan_step < 1) throw std::invalid_argument("scan_step: expected >= 1");
   const size_t cells = static_cast<size_t>(image.rows) * image.cols;
   if (image.rows < 0 || image.cols < 0 || image.points.size() != cells || image.valid.size() != cells)
     throw std::invalid_argument("range image: points/valid sizes do not match rows x cols");
@@ -959,8 +961,8 @@ ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config) {
   thread_local ScanLineFitter fitter;
   fitter.configure(config);
   cell_thresholds(image, config, thresholds);
-  fit_pass(image, thresholds, true, config.min_points_h, fitter, buf, &out.h_lines, &out.h_label);
-  fit_pass(image, thresholds, false, config.min_points_v, fitter, buf, &out.v_lines, &out.v_label);
+  fit_pass(image, thresholds, true, config.min_points_h, fitter, buf, &out.h_lines, &out.h_label, scan_step);
+  fit_pass(image, thresholds, false, config.min_points_v, fitter, buf, &out.v_lines, &out.v_label, scan_step);
   previous_h = out.h_lines.size();
   previous_v = out.v_lines.size();
   return out;

@@ -48,7 +48,7 @@ struct ScanLines {
   std::vector<std::int32_t> v_label;
 };
 
-ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config);
+ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config, int scan_step = 1);
 
 // Least-squares line through points: centroid, unit principal direction, rms of the orthogonal distances.
 struct LineLeastSquares {

@@ -75,6 +75,7 @@ void Odometry::reset(const RigidTransform& pose) {
   prev_stamp_ = 0.0;
   have_velocity_ = false;
   frames_ = 0;
+  fit_step_ = 1;
   prev_features_ = ScanFeatures{};
   prev_coarse_features_ = ScanFeatures{};
 }
@@ -311,17 +312,19 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
 
   stage = Stopwatch();
   FeatureStats fstats;
-  ScanFeatures features = extract_features(*input, config_.features, &fstats);
+  ScanFeatures features =
+      extract_features(*input, config_.features, &fstats, fit_step_, config_.registration.max_lines);
   st.ms.features = stage.ms();
   st.ms.lines = fstats.lines_ms;
   st.ms.normals = fstats.normals_ms;
   st.ms.planes = fstats.planes_ms;
-  st.h_lines = static_cast<int>(features.h_lines.size());
-  st.v_lines = static_cast<int>(features.v_lines.size());
+  st.fit_step = fit_step_;
+  st.h_lines = fstats.fitted_h_lines;
+  st.v_lines = fstats.fitted_v_lines;
   st.planes = static_cast<int>(features.planes.size());
-  st.line_step = registration_line_step(features, config_.registration.max_lines);
-  keep_lines_every(st.line_step, &features);
+  st.line_step = fstats.line_step;
   st.registered_lines = static_cast<int>(features.h_lines.size() + features.v_lines.size());
+  fit_step_ = next_fitting_step(st.h_lines + st.v_lines, fit_step_, config_.registration.max_lines);
 
   ScanFeatures coarse_features;
   const int coarse_step = config_.registration.coarse_downsample;

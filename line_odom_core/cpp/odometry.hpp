@@ -79,7 +79,8 @@ struct FrameStats {
   std::string solver = "none";  // "7L", "3L1P", "1L2P"; "none" on the first frame; "prediction" when held
   int points = 0;               // valid points after downsampling
   int h_lines = 0, v_lines = 0, planes = 0;
-  int line_step = 1;            // lines of every line_step-th row and column registered (registration.max_lines)
+  int fit_step = 1;             // h_lines, v_lines fitted on every fit_step-th row and column (line_selection.hpp)
+  int line_step = 1;            // of them, those of every line_step-th row and column kept (registration.max_lines)
   int registered_lines = 0;     // of h_lines + v_lines
   int candidates = 0, plane_candidates = 0;  // of the last pass
   int inliers = 0, plane_inliers = 0;
@@ -152,6 +153,7 @@ class Odometry {
   double prev_stamp_ = 0.0;
   bool have_velocity_ = false;
   int frames_ = 0;
+  int fit_step_ = 1;  // rows and columns the next scan's lines are fitted on (line_selection.hpp)
   ScanFeatures prev_features_;
   ScanFeatures prev_coarse_features_;
 };
