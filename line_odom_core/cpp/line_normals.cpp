@@ -70,20 +70,33 @@ void robust_normal(const CrossingLists& lists, const NormalConfig& cfg, std::vec
     const double sum_norm = sum.norm();
     if (sum_norm < 1e-9) continue;
     const Vec3 sum_mean = sum / sum_norm;
+    // When every crossing agrees, the sums over the agreeing ones are the first pass's sums (same terms, same
+    // order), and so is the new mean: only the test is needed. Both passes test against sum_mean while that
+    // holds, so the dot products are taken once for both limits (cos_dev >= cos_wide).
+    bool all_wide = true, all_dev = true;
+    for (int k = b; k < e; ++k) {
+      const double d = items[k].normal.dot(sum_mean);
+      all_wide &= d >= cos_wide;
+      all_dev &= d >= cos_dev;
+    }
     Vec3 mean = sum_mean;
+    bool mean_is_sum = true;
     int agree = 0;
     double agree_weight = 0.0;
-    for (double cos_limit : {cos_wide, cos_dev}) {
-      // When every crossing agrees, the sums over the agreeing ones are the first pass's sums (same terms, same
-      // order), and so is the new mean: only the test is needed.
-      bool all = true;
-      for (int k = b; k < e && all; ++k) all = items[k].normal.dot(mean) >= cos_limit;
+    for (int pass = 0; pass < 2; ++pass) {
+      const double cos_limit = pass == 0 ? cos_wide : cos_dev;
+      bool all = pass == 0 ? all_wide : all_dev;
+      if (!mean_is_sum) {
+        all = true;
+        for (int k = b; k < e && all; ++k) all = items[k].normal.dot(mean) >= cos_limit;
+      }
       if (all) {
         agree = e - b;
         agree_weight = total;
         mean = sum_mean;
         continue;
       }
+      mean_is_sum = false;
       Vec3 next = Vec3::Zero();
       agree = 0;
       agree_weight = 0.0;
