@@ -70,9 +70,9 @@ bool line_moments_by_span(const RangeImage& image, const std::vector<LineFeature
   const int rows = image.rows, cols = image.cols;
   const int cells = rows * cols;
   const std::int32_t* label = labels.data();
-  long labelled = 0;
+  int labelled = 0;  // an int count vectorizes
   for (int c = 0; c < cells; ++c) labelled += label[c] >= 0;
-  long found = 0;
+  int found = 0;
   const int scans = horizontal ? rows : cols, along = horizontal ? cols : rows;
   const int step = horizontal ? 1 : cols;
   for (size_t i = 0; i < lines.size(); ++i) {
