@@ -124,6 +124,13 @@ void robust_normal(const CrossingLists& lists, const NormalConfig& cfg, std::vec
 #define LINE_NORMALS_CLONES
 #endif
 
+// Cells where both labels are >= 0 (then so is their bitwise or), of n.
+LINE_NORMALS_CLONES int count_both_labelled(const std::int32_t* h_label, const std::int32_t* v_label, int n) {
+  int both = 0;
+  for (int k = 0; k < n; ++k) both += (h_label[k] | v_label[k]) >= 0;
+  return both;
+}
+
 // Voters (structure of arrays) within the vote cone of c, sign-folded.
 LINE_NORMALS_CLONES int count_votes(const double* vx, const double* vy, const double* vz, int voters,
                                     double cx, double cy, double cz, double cos_vote) {
@@ -181,11 +188,16 @@ void NormalConfig::validate() const {
 std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLines& lines,
                                          const NormalConfig& config) {
   const double sin_min = std::sin(config.min_crossing_angle_deg * kDeg);
-  const int cells = image.rows * image.cols;
   const std::int32_t* h_label = lines.h_label.data();
   const std::int32_t* v_label = lines.v_label.data();
-  int both = 0;  // an int count vectorizes; both labels are >= 0 when their bitwise or is
-  for (int cell = 0; cell < cells; ++cell) both += (h_label[cell] | v_label[cell]) >= 0;
+  // Cells held by both lines, counted per row: rows without any (most rows of a sparsely fitted scan hold no
+  // H-line) are passed over.
+  std::vector<int> row_both(image.rows);
+  int both = 0;
+  for (int r = 0; r < image.rows; ++r) {
+    row_both[r] = count_both_labelled(h_label + r * image.cols, v_label + r * image.cols, image.cols);
+    both += row_both[r];
+  }
   std::vector<LineCrossing> out;
   out.reserve(both);
   // The V-line fields a crossing reads, packed: the cells of a row visit V-lines in scattered order.
@@ -198,31 +210,24 @@ std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLine
     const LineFeature& f = lines.v_lines[i];
     v_spans[i] = {f.first, f.last, f.line.d};
   }
-  // Blocks of a row where no cell is held by both lines (h | v negative in each, so in their bitwise and) are
-  // passed over with one test: in a sparsely fitted scan most rows hold no H-line.
-  constexpr int kBlock = 8;
-  for (int r = 0; r < image.rows; ++r)
-    for (int c0 = 0; c0 < image.cols; c0 += kBlock) {
-      const int row_cell = r * image.cols, c_end = std::min(image.cols, c0 + kBlock);
-      std::int32_t none = -1;
-      for (int c = c0; c < c_end; ++c) none &= h_label[row_cell + c] | v_label[row_cell + c];
-      if (none < 0) continue;
-      for (int c = c0, cell = row_cell + c0; c < c_end; ++c, ++cell) {
-        const int h = h_label[cell], v = v_label[cell];
-        if (h < 0 || v < 0) continue;
-        // A true crossing has points of both lines on both sides; a shared end point may be a corner where a line
-        // of one surface meets a line of another (their cross product is neither's normal): it weighs less.
-        const LineFeature& lh = lines.h_lines[h];
-        const VLineSpan& lv = v_spans[v];
-        const bool at_end = c == lh.first || c == lh.last || r == lv.first || r == lv.last;
-        Vec3 n = lh.line.d.cross(lv.d);
-        const double s = n.norm();
-        if (s < sin_min) continue;
-        n /= s;
-        if (n.dot(image.points[cell]) > 0.0) n = -n;
-        out.push_back({h, v, cell, n, at_end ? config.end_crossing_weight : 1.0});
-      }
+  for (int r = 0; r < image.rows; ++r) {
+    if (row_both[r] == 0) continue;
+    for (int c = 0, cell = r * image.cols; c < image.cols; ++c, ++cell) {
+      const int h = h_label[cell], v = v_label[cell];
+      if (h < 0 || v < 0) continue;
+      // A true crossing has points of both lines on both sides; a shared end point may be a corner where a line
+      // of one surface meets a line of another (their cross product is neither's normal): it weighs less.
+      const LineFeature& lh = lines.h_lines[h];
+      const VLineSpan& lv = v_spans[v];
+      const bool at_end = c == lh.first || c == lh.last || r == lv.first || r == lv.last;
+      Vec3 n = lh.line.d.cross(lv.d);
+      const double s = n.norm();
+      if (s < sin_min) continue;
+      n /= s;
+      if (n.dot(image.points[cell]) > 0.0) n = -n;
+      out.push_back({h, v, cell, n, at_end ? config.end_crossing_weight : 1.0});
     }
+  }
   return out;
 }
 

@@ -62,6 +62,19 @@ struct MomentSums {
 
 PlaneEstimate pca_plane(const MomentSums& m) { return pca_plane(m.moments()); }
 
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define PLANE_FIT_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define PLANE_FIT_CLONES
+#endif
+
+// Labels >= 0 of n.
+PLANE_FIT_CLONES int count_labelled(const std::int32_t* label, int n) {
+  int labelled = 0;
+  for (int c = 0; c < n; ++c) labelled += label[c] >= 0;
+  return labelled;
+}
+
 // Moments of the cells of each line, in ascending cell order (as a row-major scan of the labels adds them):
 // each line scans only its own span [first, last] of its row (H) or column (V). Returns false, leaving `out`
 // unspecified, when some labelled cell lies outside its line's span (the caller then scans all cells).
@@ -70,8 +83,7 @@ bool line_moments_by_span(const RangeImage& image, const std::vector<LineFeature
   const int rows = image.rows, cols = image.cols;
   const int cells = rows * cols;
   const std::int32_t* label = labels.data();
-  int labelled = 0;  // an int count vectorizes
-  for (int c = 0; c < cells; ++c) labelled += label[c] >= 0;
+  const int labelled = count_labelled(label, cells);
   int found = 0;
   const int scans = horizontal ? rows : cols, along = horizontal ? cols : rows;
   const int step = horizontal ? 1 : cols;
@@ -89,12 +101,6 @@ bool line_moments_by_span(const RangeImage& image, const std::vector<LineFeature
   }
   return found == labelled;
 }
-
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define PLANE_FIT_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define PLANE_FIT_CLONES
-#endif
 
 // The first j in [from, count) with alive[j] and |a . n_j| not below cos_limit (n_j = (nx, ny, nz)[j]; the
 // products summed in Eigen's order for a 3-vector dot), else count. Blocks of 16 are tested without branches.
