@@ -317,19 +317,23 @@ std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<
     // Runs of cells of one region are summed in a local copy (the same running sums, kept in registers).
     const std::int32_t* h_label = lines->h_label.data();
     const std::int32_t* v_label = lines->v_label.data();
+    // A row without H-line cells (most rows of a sparsely fitted scan) reads only its V-labels.
     int run = -1;
     MomentSums sums;
-    for (int c = 0; c < cells; ++c) {
-      const int h = h_label[c], v = v_label[c];
-      int r = h >= 0 ? region[h] : -1;
-      if (r < 0 && v >= 0) r = region[nh + v];
-      if (r < 0) continue;
-      if (r != run) {
-        if (run >= 0) region_moments[run] = sums;
-        run = r;
-        sums = region_moments[r];
+    for (int row_cell = 0; row_cell < cells; row_cell += image.cols) {
+      const bool h_row = count_labelled(h_label + row_cell, image.cols) > 0;
+      for (int c = row_cell; c < row_cell + image.cols; ++c) {
+        int r = -1;
+        if (h_row && h_label[c] >= 0) r = region[h_label[c]];
+        if (r < 0 && v_label[c] >= 0) r = region[nh + v_label[c]];
+        if (r < 0) continue;
+        if (r != run) {
+          if (run >= 0) region_moments[run] = sums;
+          run = r;
+          sums = region_moments[r];
+        }
+        sums.add(image.points[c]);
       }
-      sums.add(image.points[c]);
     }
     if (run >= 0) region_moments[run] = sums;
   }
