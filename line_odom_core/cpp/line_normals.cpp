@@ -32,7 +32,7 @@ struct NormalWorkspace {
   std::vector<LineFeature*> members;
   std::vector<Vec3> normals, own;
   std::vector<std::int8_t> cluster;
-  std::vector<int> votes;
+  std::vector<int> votes, near;
   std::vector<double> vx, vy, vz;
 };
 
@@ -139,17 +139,22 @@ LINE_NORMALS_CLONES int count_votes(const double* vx, const double* vy, const do
   return votes;
 }
 
-// Principal axis of the normals within cos_limit of `axis` (sign-folded); `axis` itself when none.
-Vec3 refine_axis(const std::vector<Vec3>& normals, const Vec3& axis, double cos_limit) {
+// Principal axis of the normals within cos_limit of `axis` (sign-folded); `axis` itself when none. `near` is a
+// work buffer: the indices of those normals are listed first without branches (the test mispredicts), then summed.
+Vec3 refine_axis(const std::vector<Vec3>& normals, const Vec3& axis, double cos_limit, std::vector<int>& near) {
+  near.resize(normals.size());
+  int n = 0;
+  for (size_t i = 0; i < normals.size(); ++i) {
+    near[n] = static_cast<int>(i);
+    n += std::abs(normals[i].dot(axis)) >= cos_limit;
+  }
   // The 6 distinct entries of sum v v^T (the full sum is symmetric bit for bit: v_i v_j == v_j v_i).
   double xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
-  int n = 0;
-  for (const auto& v : normals)
-    if (std::abs(v.dot(axis)) >= cos_limit) {
-      const double x = v.x(), y = v.y(), z = v.z();
-      xx += x * x, xy += x * y, xz += x * z, yy += y * y, yz += y * z, zz += z * z;
-      ++n;
-    }
+  for (int k = 0; k < n; ++k) {
+    const Vec3& v = normals[near[k]];
+    const double x = v.x(), y = v.y(), z = v.z();
+    xx += x * x, xy += x * y, xz += x * z, yy += y * y, yz += y * z, zz += z * z;
+  }
   if (n == 0) return axis;
   Mat3 scatter;
   scatter << xx, xy, xz, xy, yy, yz, xz, yz, zz;
@@ -300,7 +305,7 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     }
     const double voters = static_cast<double>((n + vote_stride - 1) / vote_stride);
     if (best_votes == 0 || best_votes < config.min_cluster_fraction * voters) break;
-    for (int it = 0; it < 3; ++it) best = refine_axis(normals, best, cos_vote);
+    for (int it = 0; it < 3; ++it) best = refine_axis(normals, best, cos_vote, ws.near);
     if (!separated(best, found)) break;
     dirs[found] = best;
   }
@@ -340,7 +345,7 @@ std::array<Vec3, 3> cluster_line_normals(const NormalConfig& config, std::vector
     own.clear();
     for (size_t i = 0; i < n; ++i)
       if (cluster[i] == k) own.push_back(normals[i]);
-    dirs[k] = refine_axis(own, dirs[k], cos_refine);
+    dirs[k] = refine_axis(own, dirs[k], cos_refine, ws.near);
   }
   for (auto& d : dirs) d = canonical_sign(d);
   assign();
