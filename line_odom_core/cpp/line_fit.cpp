@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -78,8 +79,10 @@ struct ScanBuffer {
   std::vector<double> tau;
   std::vector<double> inv_tau2;       // 1 / tau^2
   struct PrefixSums {
-    double sx, sy, sz, xx, xy, xz, yy, yz, zz;
+    double sx, sy, sz, xx, xy, xz, yy, yz, zz;  // (fill_buffer stores the first and second four as vectors)
   };
+  static_assert(offsetof(PrefixSums, xy) == 4 * sizeof(double) && offsetof(PrefixSums, zz) == 8 * sizeof(double),
+                "PrefixSums is packed: two vectors of four sums and zz");
   std::vector<PrefixSums> prefix;     // prefix[k] = moment sums of points [0, k)
 
   int count = 0;                      // points in this scan line (the arrays keep their largest size)
@@ -754,41 +757,52 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   const int step = horizontal ? 1 : img.cols;
   buf->cell0 = cell0;
   buf->cell_step = step;
-  // The valid points, compacted.
-  const std::uint8_t* valid = img.valid.data();
-  const Vec3* points = img.points.data();
-  const double* cell_tau = th.tau.data();
-  int* out_pos = buf->pos.data();
-  Vec3* out_p = buf->p.data();
-  double* out_x = buf->x.data();
-  double* out_y = buf->y.data();
-  double* out_z = buf->z.data();
-  double* out_tau = buf->tau.data();
-  double* out_inv_tau2 = buf->inv_tau2.data();
+  // The valid points, compacted, and their prefix sums: running sums in registers (the same additions, in the same
+  // order, as prev + p p^T), in the same pass.
+  const std::uint8_t* __restrict valid = img.valid.data();
+  const double* __restrict points = img.points.empty() ? nullptr : img.points[0].data();
+  const double* __restrict cell_tau = th.tau.data();
+  int* __restrict out_pos = buf->pos.data();
+  double* __restrict out_p = buf->p.empty() ? nullptr : buf->p[0].data();
+  double* __restrict out_x = buf->x.data();
+  double* __restrict out_y = buf->y.data();
+  double* __restrict out_z = buf->z.data();
+  double* __restrict out_tau = buf->tau.data();
+  double* __restrict out_inv_tau2 = buf->inv_tau2.data();
+  ScanBuffer::PrefixSums* __restrict prefix = buf->prefix.data();
+  prefix[0] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+  F4 low = {0.0, 0.0, 0.0, 0.0}, high = {0.0, 0.0, 0.0, 0.0};  // (sx, sy, sz, xx), (xy, xz, yy, yz): PrefixSums order
+  double zz = 0.0;
+  // (pointers stepped along the scan line and the outputs: no index arithmetic in the loop)
+  const std::ptrdiff_t stride = step;
+  const std::uint8_t* __restrict v = valid + cell0;
+  const double* __restrict q = points + 3 * static_cast<std::ptrdiff_t>(cell0);
+  const double* __restrict t = cell_tau + 2 * static_cast<std::ptrdiff_t>(cell0);
+  ScanBuffer::PrefixSums* __restrict next = prefix + 1;
   int m = 0;
-  for (int k = 0, cell = cell0; k < n; ++k, cell += step) {
-    if (!valid[cell]) continue;
-    const double x = points[cell].x(), y = points[cell].y(), z = points[cell].z();
+  for (int k = 0; k < n; ++k, v += stride, q += 3 * stride, t += 2 * stride) {
+    if (!*v) continue;
+    const double x = q[0], y = q[1], z = q[2];
     out_pos[m] = k;
-    out_p[m] = Vec3(x, y, z);
+    out_p[0] = x;
+    out_p[1] = y;
+    out_p[2] = z;
+    out_p += 3;
     out_x[m] = x;
     out_y[m] = y;
     out_z[m] = z;
-    out_tau[m] = cell_tau[2 * cell];
-    out_inv_tau2[m] = cell_tau[2 * cell + 1];
+    out_tau[m] = t[0];
+    out_inv_tau2[m] = t[1];
+    low += F4{x, y, z, x * x};
+    high += F4{x, x, y, y} * F4{y, z, y, z};
+    zz += z * z;
+    std::memcpy(&next->sx, &low, sizeof low);
+    std::memcpy(&next->xy, &high, sizeof high);
+    next->zz = zz;
+    ++next;
     ++m;
   }
   buf->count = m;
-  // Their prefix sums: running sums in registers (the same additions, in the same order, as prev + p p^T).
-  ScanBuffer::PrefixSums* prefix = buf->prefix.data();
-  double sx = 0.0, sy = 0.0, sz = 0.0, xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
-  prefix[0] = {sx, sy, sz, xx, xy, xz, yy, yz, zz};
-  for (int k = 0; k < m; ++k) {
-    const double x = out_x[k], y = out_y[k], z = out_z[k];
-    sx += x, sy += y, sz += z;
-    xx += x * x, xy += x * y, xz += x * z, yy += y * y, yz += y * z, zz += z * z;
-    prefix[k + 1] = {sx, sy, sz, xx, xy, xz, yy, yz, zz};
-  }
 }
 
 // The lines of every row (horizontal) or every column; everything it calls is inlined into its two clones.
