@@ -175,17 +175,22 @@ inline __attribute__((always_inline)) int farthest_from_chord(const double* __re
     const double inv_len2 = 1.0 / len2;
     I4 best = {0, 0, 0, 0}, best_at = {0, 0, 0, 0}, index = {0, 1, 2, 3};
     const I4 count = {n, n, n, n};
-    for (int i = 0; i < n; i += kLanes, index += kLanes) {
+    // whole groups of four, then the last partial group with its lanes past n masked to 0
+    auto step = [&](int i, bool partial) __attribute__((always_inline)) {
       const F4 rx = load4(X + i) - ax, ry = load4(Y + i) - ay, rz = load4(Z + i) - az;
       const F4 ux = ry * cz - rz * cy, uy = rz * cx - rx * cz, uz = rx * cy - ry * cx;
       const F4 r = (ux * ux + uy * uy + uz * uz) * (inv_len2 * load4(W + i));
       I4 bits;
       std::memcpy(&bits, &r, sizeof bits);
-      bits &= index < count;
+      if (partial) bits &= index < count;
       const I4 more = bits > best;
       best = more ? bits : best;
       best_at = more ? index : best_at;
-    }
+      index += kLanes;
+    };
+    const int whole = n - n % kLanes;
+    for (int i = 0; i < whole; i += kLanes) step(i, false);
+    if (whole < n) step(whole, true);
     std::int64_t one;
     const double one_value = 1.0;
     std::memcpy(&one, &one_value, sizeof one);
@@ -676,8 +681,14 @@ class ScanLineFitter {
     f.first = buf.pos[c.first];
     f.last = buf.pos[c.last];
     const auto id = static_cast<std::int32_t>(out->size());
+    // (everything the loop reads held in locals: the byte flags may alias anything, so the stores would otherwise
+    // reload the vectors' data pointers on every point)
+    std::int32_t* __restrict cells = labels->data() + buf.cell0;
+    const int* __restrict pos = buf.pos.data();
+    const std::uint8_t* __restrict skipped = is_skipped_.data();
+    const std::ptrdiff_t step = buf.cell_step;
     for (int k = c.first; k <= c.last; ++k)
-      if (!is_skipped_[k]) (*labels)[buf.cell0 + buf.pos[k] * buf.cell_step] = id;
+      if (!skipped[k]) cells[pos[k] * step] = id;
     out->push_back(f);
   }
 
