@@ -55,19 +55,7 @@ def _float_array(name: str, value: Any, ndim: int, last: int | None, what: str) 
         raise ValueError(f"{name}: expected {what}, got array of shape {arr.shape} and dtype {arr.dtype}")
     if arr.dtype not in (np.float32, np.float64):
         arr = arr.astype(np.float64)
-    return arr if last == 3 and _read_in_place(arr) else np.require(arr, requirements=["C", "A"])
-
-
-def _read_in_place(points: np.ndarray) -> bool:
-    """Whether the engine can read these points without a copy (bindings.cpp point_stride): each point's x, y, z
-    adjacent and aligned, points a whole number of values apart, rows of an organized array one after another."""
-    if points.size == 0:
-        return True
-    item = points.itemsize
-    step = points.strides[-2] if points.shape[-2] > 1 else points.shape[-1] * item
-    rows_follow = points.ndim < 3 or points.shape[0] <= 1 or points.strides[0] == points.shape[1] * step
-    return (points.flags.aligned and points.strides[-1] == item and step % item == 0 and step // item >= 3
-            and rows_follow)
+    return arr if last == 3 and _core.reads_in_place(arr) else np.require(arr, requirements=["C", "A"])
 
 
 def _pose(name: str, value: Any) -> np.ndarray:

@@ -862,22 +862,30 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   return d;
 }
 
-// (N, k >= 3) or (H, W, k >= 3) float32/float64 points, each point's x, y, z adjacent and aligned, points a whole
-// number of values apart (a view such as cloud[:, :3] of an (N, 4) array or a PointCloud2 buffer is read in place),
-// rows of an organized array one after another. Returns the values from one point to the next.
-std::size_t point_stride(const py::array& xyz, int ndim, const char* what) {
-  if (xyz.ndim() != ndim || xyz.shape(ndim - 1) < 3) throw py::value_error(std::string("xyz: expected ") + what);
-  if (!py::isinstance<py::array_t<float>>(xyz) && !py::isinstance<py::array_t<double>>(xyz))
-    throw py::value_error("xyz: expected float32 or float64 values");
+// Values from one point to the next of (N, k >= 3) or (H, W, k >= 3) float32/float64 points when the engine can read
+// them in place: each point's x, y, z adjacent and aligned, points a whole number of values apart (a view such as
+// cloud[:, :3] of an (N, 4) array or a PointCloud2 buffer), rows of an organized array one after another; else 0.
+std::size_t in_place_stride(const py::array& xyz) {
+  const int ndim = static_cast<int>(xyz.ndim());
+  if (ndim < 2 || xyz.shape(ndim - 1) < 3) return 0;
   if (xyz.size() == 0) return static_cast<std::size_t>(xyz.shape(ndim - 1));
   const py::ssize_t item = xyz.itemsize();
   const py::ssize_t step = xyz.shape(ndim - 2) > 1 ? xyz.strides(ndim - 2) : xyz.shape(ndim - 1) * item;
   const bool rows_follow = ndim < 3 || xyz.shape(0) <= 1 || xyz.strides(0) == xyz.shape(1) * step;
   const bool aligned = reinterpret_cast<std::uintptr_t>(xyz.data()) % static_cast<std::uintptr_t>(item) == 0;
-  if (!aligned || xyz.strides(ndim - 1) != item || step % item != 0 || step / item < 3 ||
-      !rows_follow)
-    throw py::value_error("xyz: expected each point's x, y, z adjacent in memory and aligned (np.ascontiguousarray)");
+  if (!aligned || xyz.strides(ndim - 1) != item || step % item != 0 || step / item < 3 || !rows_follow) return 0;
   return static_cast<std::size_t>(step / item);
+}
+
+// in_place_stride of points that must be readable in place (ValueError naming xyz otherwise).
+std::size_t point_stride(const py::array& xyz, int ndim, const char* what) {
+  if (xyz.ndim() != ndim || xyz.shape(ndim - 1) < 3) throw py::value_error(std::string("xyz: expected ") + what);
+  if (!py::isinstance<py::array_t<float>>(xyz) && !py::isinstance<py::array_t<double>>(xyz))
+    throw py::value_error("xyz: expected float32 or float64 values");
+  const std::size_t stride = in_place_stride(xyz);
+  if (stride == 0)
+    throw py::value_error("xyz: expected each point's x, y, z adjacent in memory and aligned (np.ascontiguousarray)");
+  return stride;
 }
 
 const std::int32_t* ring_pointer(const std::optional<py::array_t<std::int32_t>>& ring, std::size_t n) {
@@ -1067,6 +1075,8 @@ PYBIND11_MODULE(_core, m) {
         .def("pose", [](const Odometry& o) -> line_odom::Mat4 { return o.pose().matrix(); })
         .def("frames", &Odometry::frames)
         .def("settings", [](const Odometry& o) { return ob::settings_dict(o.config()); });
+    m.def("reads_in_place", [](const py::array& xyz) { return ob::in_place_stride(xyz) > 0; }, py::arg("xyz"),
+          "Whether register_points / register_organized read these points without a copy.");
     // Per-frame rotation conversions of the Python side (result twist, ROS messages): Eigen's, because scipy's
     // Rotation costs ~0.2 ms a call right after a registration has flushed the caches.
     m.def("rotation_vector",
