@@ -10,9 +10,9 @@ single-threaded by default (the goal is stated for one core). Timings on a share
 the ratio within one run.
 
 At full resolution the presets fit and register the lines of every 4th row and column of a KITTI scan
-(registration.max_lines), each fitted to every point of its row or column. The row "full, all lines" runs the same
-frames with registration.max_lines = 0 (res "all"): every row and column fitted and registered. Its line-fitting time is the
-issue's "line fitting on a full KITTI frame".
+(registration.max_lines), each fitted to every point of its row or column. The row "all" runs the same frames with
+registration.max_lines = 0: every row and column fitted and registered. Its line-fitting time is the issue's "line
+fitting on a full KITTI frame".
 """
 from __future__ import annotations
 

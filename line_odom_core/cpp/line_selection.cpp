@@ -28,6 +28,7 @@ void keep_every(int step, std::vector<LineFeature>* lines, std::vector<std::int3
     new_index[i] = static_cast<std::int32_t>(kept);
     (*lines)[kept++] = (*lines)[i];
   }
+  if (kept == lines->size()) return;  // nothing dropped: the labels stand
   lines->resize(kept);
   for (std::int32_t& label : *labels)
     if (label >= 0) label = new_index[static_cast<std::size_t>(label)];
