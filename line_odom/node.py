@@ -15,6 +15,7 @@ import traceback
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy, qos_profile_sensor_data
@@ -310,6 +311,11 @@ def main(args=None) -> int:
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        # Ctrl-C / SIGTERM: rclpy's signal handler shuts the context down from another thread, and an executor
+        # building its wait set at that moment raises this instead of ExternalShutdownException (ros2/rclpy#398).
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.shutdown()
