@@ -136,13 +136,15 @@ def _parse_overrides(items: list[str]) -> dict:
     """["downsample=6", "ransac.solver=7L"] -> {"downsample": 6, "ransac.solver": "7L"} (values read as YAML)."""
     import yaml
 
+    from line_odom_core.config import yaml_load
+
     out = {}
     for item in items:
         name, sep, text = item.partition("=")
         if not sep or not name.strip():
             raise ValueError(f"--set: expected NAME=VALUE, got {item!r}")
         try:
-            out[name.strip()] = yaml.safe_load(text)
+            out[name.strip()] = yaml_load(text)
         except yaml.YAMLError:
             raise ValueError(f"--set {name}: cannot read the value {text!r}") from None
     return out

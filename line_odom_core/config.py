@@ -4,8 +4,10 @@ the same names as the ROS parameters of the node, read from ROS 2 parameter file
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
+import re
 import sys
 from pathlib import Path
 from typing import Any, Iterable, Mapping, NamedTuple
@@ -335,13 +337,32 @@ def preset_path(name: str) -> Path:
     raise FileNotFoundError(f"preset {name!r}: {name}.yaml not found in " + ", ".join(str(d) for d in searched))
 
 
-def read_parameter_file(path: str | Path, node: str = NODE_NAME) -> dict[str, Any]:
-    """The flattened ros__parameters of `node` (or of the wildcard "/**") in a ROS 2 parameter file."""
+@functools.lru_cache(maxsize=None)
+def _yaml_loader():
     import yaml
 
+    class Loader(yaml.SafeLoader):
+        pass
+
+    # YAML 1.1 (PyYAML) needs a dot in a float, so 1e-4 would be a string; ROS 2's parameter parser reads it as a
+    # double, and so do we.
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+$"),
+                                 list("-+0123456789."))
+    return Loader
+
+
+def yaml_load(stream: Any) -> Any:
+    """yaml.safe_load with exponent floats without a dot (1e-4) read as floats, as ROS 2 reads parameter files."""
+    import yaml
+
+    return yaml.load(stream, Loader=_yaml_loader())
+
+
+def read_parameter_file(path: str | Path, node: str = NODE_NAME) -> dict[str, Any]:
+    """The flattened ros__parameters of `node` (or of the wildcard "/**") in a ROS 2 parameter file."""
     path = Path(path)
     with open(path, encoding="utf-8") as f:
-        doc = yaml.safe_load(f)
+        doc = yaml_load(f)
     if not isinstance(doc, Mapping):
         raise ValueError(f"{path}: expected a ROS 2 parameter file (mapping '{node}: ros__parameters: ...')")
     params: dict[str, Any] = {}
