@@ -257,12 +257,12 @@ def main(argv=None) -> int:
     if args.only == "sim":
         args.sim = True
 
+    from line_odom_core.config import yaml_load
+
     overrides = {}
     for item in args.set:
         key, _, value = item.partition("=")
-        import yaml
-
-        overrides[key] = yaml.safe_load(value)
+        overrides[key] = yaml_load(value)
     kiss = not args.no_kiss and kiss_available()
     if not args.no_kiss and not kiss:
         print(KISS_HINT)
@@ -281,7 +281,8 @@ def main(argv=None) -> int:
             rows.append(run_tum(level, args.tum_frames, kiss, overrides))
             print(format_row(rows[-1]), flush=True)
     if rows:
-        print("\nsummary (ms: mean per frame, Python call included; deg: frames where the prediction was held)")
+        print("\nsummary (ms: mean per frame, Python call included; deg: degenerate frames, the prediction held in "
+              "full or along the directions the lines do not observe, registration.partial_updates)")
         print_table(rows)
     if args.sim:
         run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels))

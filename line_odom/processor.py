@@ -453,7 +453,8 @@ class OdometryProcessor:
             values.update(latency_ms_last=lat[-1], latency_ms_mean=float(lat.mean()),
                           latency_ms_p95=float(np.percentile(lat, 95)))
         for key in (
-                "solver", "inliers", "degenerate", "candidates", "h_lines", "v_lines", "registered_lines", "planes"):
+                "solver", "inliers", "degenerate", "held_directions", "candidates", "h_lines", "v_lines",
+                "registered_lines", "planes"):
             if key in stats:
                 values[key] = stats[key]
         for stage, ms in (stats.get("ms") or {}).items():
@@ -475,7 +476,10 @@ class OdometryProcessor:
         status.hardware_id = self.sensor_frame or self.settings.input
         problems = []
         if values.get("degenerate"):
-            problems.append("degenerate geometry: pose held by the motion model, covariance inflated")
+            held = values.get("held_directions", 6)
+            problems.append("degenerate geometry: pose held by the motion model, covariance inflated" if held >= 6 else
+                            f"degenerate geometry: {held} of 6 motion directions held by the motion model, "
+                            "covariance inflated along them")
         for key, text in (("frames_malformed", "malformed"), ("frames_failed", "failed"),
                           ("frames_dropped", "dropped (processing behind or no CameraInfo)"),
                           ("frames_duplicate", "with a repeated stamp")):

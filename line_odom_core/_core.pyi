@@ -88,7 +88,7 @@ class FrameResult:
     stats keys:
       solver: str             "7L", "3L1P" or "1L2P" (solver of the winning hypothesis); "none" on the first
                               frame after construction/reset; "prediction" when the motion model's prediction was
-                              held (registration failed or was degenerate)
+                              held (registration failed or was degenerate); "refine" when the refined guess won
       points: int             valid range-image cells after downsampling
       h_lines, v_lines: int   lines fitted along rows / columns
       line_step: int          the lines of every line_step-th row and column were registered
@@ -104,7 +104,11 @@ class FrameResult:
       iterations: int         RANSAC hypotheses over all passes
       passes: int             passes that produced an accepted estimate (of registration.passes)
       registered: bool        an estimate was accepted for this frame (the first frame counts as registered)
-      degenerate: bool        the prediction was held and the covariance inflated
+      degenerate: bool        the prediction was held (in full, or along held_directions) and the covariance
+                              inflated there
+      held_directions: int    0 registered in full; 1-5 a partial estimate (registration.partial_updates): that many
+                              directions of the motion the lines do not observe come from the prediction, the rest
+                              from the lines; 6 the prediction held in full
       failure: str            why, when degenerate ("" otherwise)
       ms: dict[str, float]    per-stage milliseconds: organize, downsample, features, candidates, ransac, total
     """

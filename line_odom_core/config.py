@@ -173,6 +173,9 @@ _ENTRIES: list[ConfigEntry] = [
                 "directions follow the motion model (0 = off)", 0.0, 100.0),
     ConfigEntry("registration.motion_prior_rotation_sigma_deg", float, 0.5, "1-sigma deviation (deg per frame) "
                 "from the constant-velocity prediction, used with motion_prior_translation_sigma", 1e-6, 180.0),
+    ConfigEntry("registration.partial_updates", bool, True, "a degenerate registration keeps the directions the "
+                "lines observe and holds only the others at the prediction (false: holds the whole prediction)",
+                None, None),
     ConfigEntry("registration.fallback_translation_sigma", float, 0.5, "1-sigma translation uncertainty (m) "
                 "reported when the prediction is held", 0.0, 1000.0),
     ConfigEntry("registration.fallback_rotation_sigma_deg", float, 5.0, "1-sigma rotation uncertainty (deg) "

@@ -857,6 +857,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["passes"] = s.passes;
   d["registered"] = s.registered;
   d["degenerate"] = s.degenerate;
+  d["held_directions"] = s.held_directions;
   d["failure"] = s.failure;
   d["ms"] = ms;
   return d;

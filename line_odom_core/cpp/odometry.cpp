@@ -15,6 +15,7 @@ namespace line_odom {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+constexpr double kHeldAxisCosine = 0.9;  // an axis this close to the held directions counts as held
 
 class Stopwatch {
  public:
@@ -177,6 +178,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
            rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
   };
   std::unique_ptr<CandidateIndex> prev_index;  // frame a never moves: indexed once for all passes
+  RefineResult last_refined;  // the refined guess of the last pass, when it converged
+  bool last_refine_converged = false;
   for (int pass = 0; pass < reg.passes; ++pass) {
     stage = Stopwatch();
     if (!prev_index) prev_index = std::make_unique<CandidateIndex>(prev);
@@ -195,6 +198,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     RefineResult refined;
     const bool refine_converged = refine_motion(corr, table, best, ropt, &refined) && sane(refined.T);
     const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
+    last_refined = refined;
+    last_refine_converged = refine_converged;
     RigidTransform estimate;
     MotionStats ms;
     // Without a motion guess (the first motion, searched from standing still) the refined guess may sit on a
@@ -246,31 +251,86 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     failure.clear();
   }
 
-  if (have && !best_stats.degenerate) {
-    const double thr = config_.ransac.inlier_threshold;
-    int inliers = 0;
-    score_motion(table, best, thr, ropt.min_line_sine, &inliers);
+  const double thr = config_.ransac.inlier_threshold;
+  // Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few chance
+  // pairs within the threshold, whatever motion they are fitted to. The share must be shown, not just reached:
+  // two binomial standard deviations above min_inlier_ratio (a few dozen candidates prove little).
+  auto too_few_meet = [&](const RigidTransform& T, int* inliers) {
+    score_motion(table, T, thr, ropt.min_line_sine, inliers);
     const double pairs = static_cast<double>(corr.lines_a.size());
-    double pair_share = 0.0;
-    const double weight_share = reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0
-                                    ? axis_support(table, best, thr, ropt.min_line_sine, &pair_share)
-                                    : 0.0;
-    // Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few chance
-    // pairs within the threshold, whatever motion they are fitted to. The share must be shown, not just reached:
-    // two binomial standard deviations above min_inlier_ratio (a few dozen candidates prove little).
     const double r = reg.min_inlier_ratio;
-    if (pairs > 0.0 && r > 0.0 && inliers < r * pairs + 2.0 * std::sqrt(pairs * r * (1.0 - r))) {
+    return pairs > 0.0 && r > 0.0 && *inliers < r * pairs + 2.0 * std::sqrt(pairs * r * (1.0 - r));
+  };
+  // The axes a push along which keeps the inliers (refine.hpp: axis_support): motions the intersections do not
+  // observe, however well-conditioned the coincidental pairs make J^T W J look.
+  auto unobserved_axes = [&](const RigidTransform& T) {
+    if (!(reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0)) return 0;
+    AxisShares shares;
+    double pair_share = 0.0;
+    axis_support(table, T, thr, ropt.min_line_sine, &pair_share, &shares);
+    int axes = 0;
+    for (int axis = 0; axis < 6; ++axis)
+      if ((reg.max_axis_support < 1.0 && shares.weight[axis] >= reg.max_axis_support) ||
+          (reg.max_axis_pair_support < 1.0 && shares.pairs[axis] >= reg.max_axis_pair_support))
+        axes |= 1 << axis;
+    return axes;
+  };
+  int inliers = 0;
+  int axes = 0;
+  if (have && !best_stats.degenerate) {
+    if (too_few_meet(best, &inliers)) {
       best_stats.degenerate = true;
       failure = "too few candidate pairs meet (" + std::to_string(inliers) + " of " +
                 std::to_string(corr.lines_a.size()) + " < registration.min_inlier_ratio)";
-    } else if ((reg.max_axis_support < 1.0 && weight_share >= reg.max_axis_support) ||
-               (reg.max_axis_pair_support < 1.0 && pair_share >= reg.max_axis_pair_support)) {
-      best_stats.degenerate = true;  // a motion the intersections do not observe (refine.hpp: axis_support)
+    } else if ((axes = unobserved_axes(best)) != 0) {
+      best_stats.degenerate = true;
       failure = "unobservable motion (a push along one axis keeps the inliers)";
     }
   }
 
   PassOutcome out;
+  // What the pairs do observe of a degenerate motion is kept, the rest follows the motion model (refine.hpp:
+  // refine_motion_partial): the unobserved axes of an estimate, or the weak directions of an ill-conditioned
+  // refined guess. The result must pass the same checks along the directions it does not hold.
+  const RigidTransform* partial_from = nullptr;
+  bool lock_weak = false;
+  const bool partial = reg.partial_updates && have_velocity_;  // no velocity yet: the prediction holds nothing
+  if (partial && have && best_stats.degenerate && axes != 0) {
+    partial_from = &best;
+  } else if (partial && !have && last_refine_converged && last_refined.line_inliers >= reg.min_inliers) {
+    partial_from = &last_refined.T;
+    lock_weak = true;
+  }
+  for (int round = 0; partial_from && round < 2; ++round) {
+    RefineResult partial;
+    if (!refine_motion_partial(corr, table, *partial_from, prediction, axes, lock_weak, ropt, &partial) ||
+        !sane(partial.T) || partial.degenerate || partial.line_inliers < reg.min_inliers ||
+        too_few_meet(partial.T, &inliers))
+      break;
+    // An unobserved axis the held directions already (nearly) contain is held; another one is held too, once.
+    int uncovered = 0;
+    const int unobserved = unobserved_axes(partial.T);
+    for (int axis = 0; axis < 6; ++axis)
+      if ((unobserved >> axis & 1) &&
+          partial.locked_basis.leftCols(partial.locked_directions).row(axis).norm() < kHeldAxisCosine)
+        uncovered |= 1 << axis;
+    if (uncovered != 0) {
+      axes |= uncovered;
+      continue;
+    }
+    best = partial.T;
+    copy_refinement_stats(partial, &best_stats);
+    best_stats.covariance = partial.covariance;
+    best_stats.degenerate = false;
+    if (!have) best_stats.best_solver = -2;
+    have = true;
+    out.held_directions = partial.locked_directions;
+    out.held_basis = partial.locked_basis;
+    failure = "partly unobserved motion: " + std::to_string(partial.locked_directions) +
+              " of 6 directions held by the motion model";
+    break;
+  }
+
   out.best = best;
   out.stats = best_stats;
   out.have = have;
@@ -376,25 +436,30 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       if (have_velocity_ && reg.motion_prior_translation_sigma > 0.0) {
         // MAP fusion with the constant-velocity prior on the left perturbation exp(xi) * prediction: directions
         // the lines observe poorly (large covariance) stay with the prediction.
-        const RigidTransform D = best * prediction.inverse();
-        Vec6 xi;
-        xi.head<3>() = D.t;
-        const Eigen::AngleAxisd aa(D.R);
-        xi.tail<3>() = aa.angle() * aa.axis();
+        const Vec6 xi = motion_difference(best, prediction);
         const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
         Mat6 prior = Mat6::Zero();
         prior.diagonal() << pt * pt, pt * pt, pt * pt, pr * pr, pr * pr, pr * pr;
         const Mat6 gain = prior * (prior + result.covariance).inverse();
         const Vec6 fused = gain * xi;
         if (fused.allFinite()) {
-          RigidTransform step;
-          const double angle = fused.tail<3>().norm();
-          if (angle > 1e-15) step.R = Eigen::AngleAxisd(angle, fused.tail<3>() / angle).toRotationMatrix();
-          step.t = fused.head<3>();
-          result.delta = step * prediction;
+          result.delta = apply_motion_difference(fused, prediction);
           result.covariance = (Mat6::Identity() - gain) * result.covariance;
           result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
         }
+      }
+      if (outcome.held_directions > 0) {
+        // Along the held directions only the motion model speaks: at least the fallback variance there.
+        const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
+        for (int k = 0; k < outcome.held_directions; ++k) {
+          const Vec6 u = outcome.held_basis.col(k);
+          const double floor = ts * ts * u.head<3>().squaredNorm() + rs * rs * u.tail<3>().squaredNorm();
+          const double variance = u.dot(result.covariance * u);
+          if (variance < floor) result.covariance += (floor - variance) * u * u.transpose();
+        }
+        st.degenerate = true;
+        st.held_directions = outcome.held_directions;
+        st.failure = failure;
       }
       st.solver = solver_name(best_stats.best_solver);
       st.registered = true;
@@ -407,6 +472,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       if (have) result.covariance = result.covariance.cwiseMax(best_stats.covariance);
       st.solver = "prediction";
       st.degenerate = true;
+      st.held_directions = 6;
       st.failure = failure.empty() ? "registration failed" : failure;
     }
     st.inliers = best_stats.inliers;
@@ -484,6 +550,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.covariance_scale", c.registration.covariance_scale);
   visit("registration.motion_prior_translation_sigma", c.registration.motion_prior_translation_sigma);
   visit("registration.motion_prior_rotation_sigma_deg", c.registration.motion_prior_rotation_sigma_deg);
+  visit("registration.partial_updates", c.registration.partial_updates);
   visit("registration.fallback_translation_sigma", c.registration.fallback_translation_sigma);
   visit("registration.fallback_rotation_sigma_deg", c.registration.fallback_rotation_sigma_deg);
 }

@@ -42,6 +42,7 @@ struct RegistrationOptions {
   int first_motion_pairs_per_line = 0;  // no motion guess yet: the k closest partners of each line (0: all within
                                         // candidates.max_distance, paper §6.3)
   int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / = downsample: off)
+  bool partial_updates = true;          // degenerate: keep what the pairs observe, hold only the rest (refine.hpp)
   double fallback_translation_sigma = 0.5;    // covariance reported when the prediction is held
   double fallback_rotation_sigma_deg = 5.0;
 };
@@ -89,7 +90,9 @@ struct FrameStats {
   int iterations = 0;           // RANSAC hypotheses over all passes
   int passes = 0;               // passes that produced an estimate
   bool registered = false;      // an estimate was accepted for this frame
-  bool degenerate = false;      // registration failed or was ill-conditioned: the prediction was held
+  bool degenerate = false;      // registration failed or was ill-conditioned: the prediction was held (in full, or
+                                // along held_directions)
+  int held_directions = 0;      // 1..5: a partial estimate, these directions from the prediction; 6: held in full
   std::string failure;          // why, when degenerate
   StageMilliseconds ms;
 };
@@ -107,6 +110,8 @@ struct PassOutcome {
   MotionStats stats;
   bool have = false;
   std::string failure;
+  int held_directions = 0;  // of a partial estimate: directions of xi held at the prediction (columns of held_basis)
+  Mat6 held_basis = Mat6::Zero();
 };
 
 class Odometry {

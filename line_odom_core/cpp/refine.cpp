@@ -204,8 +204,9 @@ void copy_refinement_stats(const RefineResult& refined, MotionStats* stats) {
 }
 
 double axis_support(const LinePairTable& pairs, const RigidTransform& T, double threshold, double min_sine,
-                    double* pair_share) {
+                    double* pair_share, AxisShares* per_axis) {
   if (pair_share) *pair_share = 0.0;
+  if (per_axis) *per_axis = AxisShares{};
   const int n = pairs.size();
   std::vector<std::uint8_t> meets(n);
   pairs.inlier_mask(T, threshold, min_sine, 0, n, meets.data());
@@ -239,25 +240,61 @@ double axis_support(const LinePairTable& pairs, const RigidTransform& T, double 
       }
       worst = std::max(worst, kept / total);
       worst_pairs = std::max(worst_pairs, kept_pairs / count);
+      if (per_axis) {
+        per_axis->weight[axis] = std::max(per_axis->weight[axis], kept / total);
+        per_axis->pairs[axis] = std::max(per_axis->pairs[axis], kept_pairs / count);
+      }
     }
   }
   if (pair_share) *pair_share = worst_pairs;
   return worst;
 }
 
-bool refine_motion(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,
-                   const RefineOptions& options, RefineResult* result) {
+namespace {
+
+// Directions of xi held where the start has them (refine_motion_partial): an orthonormal basis `locked` of them in
+// the scaled coordinates xi_s = S^-1 xi, S = diag(1, 1, 1, len, len, len) as in scaled_condition.
+struct LockedSubspace {
+  Vec6 scale = Vec6::Ones();
+  Mat6 locked = Mat6::Zero();
+  int count = 0;
+
+  Mat6 free_projector() const {
+    return Mat6::Identity() - locked.leftCols(count) * locked.leftCols(count).transpose();
+  }
+  // The Gauss-Newton step with no component along the locked directions: (Q Hs Q + c L L^T) dx_s = -Q gs.
+  Vec6 step(const Mat6& H, const Vec6& g) const {
+    const Mat6 Q = free_projector();
+    const Mat6 Hs = scale.asDiagonal() * H * scale.asDiagonal();
+    const double stiffness = std::max(Hs.trace(), 1e-30);
+    const Mat6 M = Q * Hs * Q + stiffness * (Mat6::Identity() - Q);
+    const Vec6 dx_s = M.ldlt().solve(-(Q * (scale.asDiagonal() * g)));
+    return scale.asDiagonal() * dx_s;
+  }
+  // H restricted to the free directions (zero information along the locked ones), in xi coordinates.
+  Mat6 free_information(const Mat6& H) const {
+    const Mat6 Q = free_projector();
+    const Mat6 Hs = scale.asDiagonal() * H * scale.asDiagonal();
+    const Vec6 inv_scale = scale.cwiseInverse();
+    return inv_scale.asDiagonal() * (Q * Hs * Q) * inv_scale.asDiagonal();
+  }
+};
+
+// Pair weights are relative: scale them to mean 1 over all line pairs so sigma^2 stays in metres^2.
+double pair_weight_scale(const Correspondences& data) {
+  if (data.weights.empty()) return 1.0;
+  double sum = 0.0;
+  int count = 0;
+  for (double w : data.weights)
+    if (w > 0.0) sum += w, ++count;
+  return sum > 0.0 ? count / sum : 1.0;
+}
+
+bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,
+                  const RefineOptions& options, const LockedSubspace* locked, RefineResult* result) {
   RefineResult res;
   res.T = T0;
-  // Pair weights are relative: scale them to mean 1 over all line pairs so sigma^2 stays in metres^2.
-  double weight_scale = 1.0;
-  if (!data.weights.empty()) {
-    double sum = 0.0;
-    int count = 0;
-    for (double w : data.weights)
-      if (w > 0.0) sum += w, ++count;
-    if (sum > 0.0) weight_scale = count / sum;
-  }
+  const double weight_scale = pair_weight_scale(data);
 
   RigidTransform T = T0;
   bool ok = true;
@@ -270,8 +307,13 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
       ok = false;
       break;
     }
-    const double damping = 1e-12 * std::max(ne.H.trace(), 1e-30);
-    const Vec6 dx = (ne.H + damping * Mat6::Identity()).ldlt().solve(-ne.g);
+    Vec6 dx;
+    if (locked) {
+      dx = locked->step(ne.H, ne.g);
+    } else {
+      const double damping = 1e-12 * std::max(ne.H.trace(), 1e-30);
+      dx = (ne.H + damping * Mat6::Identity()).ldlt().solve(-ne.g);
+    }
     if (!dx.allFinite()) {
       ok = false;
       break;
@@ -292,19 +334,32 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
     if (result) *result = res;
     return false;
   }
+  const Mat6 information = locked ? locked->free_information(ne.H) : ne.H;
   res.T = T;
   res.line_inliers = ne.line_inliers;
   res.line_inlier_weight = ne.line_inlier_weight;
   res.plane_inliers = ne.plane_inliers;
   res.residual_rms = ne.line_inliers > 0 ? std::sqrt(ne.line_sq / ne.line_inliers) : 0.0;
-  res.condition = scaled_condition(ne.H);
+  if (locked) {
+    // Condition of the free directions alone: the locked ones count as the largest.
+    const Mat6 Hs = locked->scale.asDiagonal() * ne.H * locked->scale.asDiagonal();
+    const Mat6 Q = locked->free_projector();
+    Eigen::SelfAdjointEigenSolver<Mat6> es(Q * Hs * Q, Eigen::EigenvaluesOnly);
+    const double lmax = es.eigenvalues()(5);
+    res.condition = lmax > 0.0 ? std::max(0.0, es.eigenvalues()(locked->count) / lmax) : 0.0;
+    res.locked_directions = locked->count;
+    for (int k = 0; k < locked->count; ++k)
+      res.locked_basis.col(k) = (locked->scale.asDiagonal() * locked->locked.col(k)).normalized();
+  } else {
+    res.condition = scaled_condition(ne.H);
+  }
   res.degenerate = !(res.condition >= options.degeneracy_threshold);
   if (options.compute_covariance) {
     // sigma^2 from the residuals, floored so an exact fit still gives a positive definite covariance.
-    const int dof = std::max(1, ne.residuals - 6);
+    const int dof = std::max(1, ne.residuals - 6 + (locked ? locked->count : 0));
     const double sigma_floor = 1e-3 * options.line_threshold;
     const double sigma2 = std::max(ne.weighted_sq / dof, sigma_floor * sigma_floor);
-    Eigen::SelfAdjointEigenSolver<Mat6> es(ne.H);
+    Eigen::SelfAdjointEigenSolver<Mat6> es(information);
     const double lmax = std::max(es.eigenvalues()(5), 1e-300);
     Vec6 inv;
     for (int k = 0; k < 6; ++k) inv(k) = 1.0 / std::max(es.eigenvalues()(k), 1e-12 * lmax);
@@ -314,6 +369,61 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
   }
   if (result) *result = res;
   return true;
+}
+
+}  // namespace
+
+bool refine_motion(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,
+                   const RefineOptions& options, RefineResult* result) {
+  return gauss_newton(data, pairs, T0, options, nullptr, result);
+}
+
+Vec6 motion_difference(const RigidTransform& T, const RigidTransform& reference) {
+  const RigidTransform D = T * reference.inverse();
+  const Eigen::AngleAxisd aa(D.R);
+  Vec6 xi;
+  xi << D.t, aa.angle() * aa.axis();
+  return xi;
+}
+
+RigidTransform apply_motion_difference(const Vec6& xi, const RigidTransform& reference) {
+  RigidTransform step;
+  const double angle = xi.tail<3>().norm();
+  if (angle > 1e-15) step.R = Eigen::AngleAxisd(angle, xi.tail<3>() / angle).toRotationMatrix();
+  step.t = xi.head<3>();
+  return step * reference;
+}
+
+bool refine_motion_partial(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T_from,
+                           const RigidTransform& prior, int locked_axes, bool lock_weak, const RefineOptions& options,
+                           RefineResult* result) {
+  if (result) *result = RefineResult{};
+  if (result) result->T = T_from;
+  const NormalEquations ne = accumulate(data, pairs, T_from, options, pair_weight_scale(data));
+  const double tt = ne.H.topLeftCorner<3, 3>().trace();
+  const double tr = ne.H.bottomRightCorner<3, 3>().trace();
+  if (ne.residuals < 6 || !(tt > 0.0) || !(tr > 0.0)) return false;
+  LockedSubspace locked;
+  const double len = std::sqrt(tt / tr);
+  locked.scale << 1.0, 1.0, 1.0, len, len, len;
+  auto lock = [&](Vec6 u) {  // Gram-Schmidt against the directions locked so far
+    for (int k = 0; k < locked.count; ++k) u -= locked.locked.col(k).dot(u) * locked.locked.col(k);
+    if (u.norm() > 1e-6 && locked.count < 6) locked.locked.col(locked.count++) = u.normalized();
+  };
+  for (int axis = 0; axis < 6; ++axis)
+    if (locked_axes & (1 << axis)) lock(Vec6::Unit(axis));
+  if (lock_weak) {
+    const Mat6 Hs = locked.scale.asDiagonal() * ne.H * locked.scale.asDiagonal();
+    Eigen::SelfAdjointEigenSolver<Mat6> es(Hs);
+    const double lmax = es.eigenvalues()(5);
+    for (int k = 0; k < 5; ++k)
+      if (!(es.eigenvalues()(k) >= options.degeneracy_threshold * lmax)) lock(es.eigenvectors().col(k));
+  }
+  if (locked.count == 0 || locked.count >= 6) return false;
+  // Start from T_from with its locked components replaced by the prior's.
+  const Vec6 xi_s = locked.scale.cwiseInverse().asDiagonal() * motion_difference(T_from, prior);
+  const Vec6 start = locked.scale.asDiagonal() * (locked.free_projector() * xi_s);
+  return gauss_newton(data, pairs, apply_motion_difference(start, prior), options, &locked, result);
 }
 
 }  // namespace line_odom

@@ -8,6 +8,8 @@
 // pair weight; covariance = sigma^2 (J^T W J)^-1 with sigma^2 from the weighted residuals.
 #pragma once
 
+#include <array>
+
 #include "line_pair_table.hpp"
 #include "motion_estimation.hpp"
 #include "types.hpp"
@@ -35,6 +37,8 @@ struct RefineResult {
   double condition = 0.0;     // smallest / largest eigenvalue of J^T W J with rotations scaled to metres
   bool degenerate = true;
   int iterations = 0;
+  int locked_directions = 0;  // refine_motion_partial: directions held at the prior (no information in covariance)
+  Mat6 locked_basis = Mat6::Zero();  // ... as unit columns 0..locked_directions-1 in xi coordinates
 };
 
 // Motion of a left perturbation: exp(xi) as a rigid transform, xi = (v, w).
@@ -53,13 +57,30 @@ void copy_refinement_stats(const RefineResult& refined, MotionStats* stats);
 // the coincidental pairs make J^T W J look. `pair_share` (optional) gets the same for the share of inlier
 // pairs, each counted once: the cluster weights can give a handful of pairs without a normal cluster a third of
 // the weight, so a few coincidental pairs (two planes' seam) would otherwise pass for an observed axis.
+// `per_axis` (optional) gets both shares for each axis (the larger of its two signs).
+struct AxisShares {
+  std::array<double, 6> weight{}, pairs{};
+};
 double axis_support(const LinePairTable& pairs, const RigidTransform& T, double threshold, double min_sine,
-                    double* pair_share = nullptr);
+                    double* pair_share = nullptr, AxisShares* per_axis = nullptr);
 
 // Gauss-Newton / IRLS from T0 over the pairs that are inliers at each iterate: the line pairs of `data` as
 // tabled in `pairs`, its planes from `data`. Returns false (result->T = T0) when fewer residuals than unknowns
 // remain or a step is not finite; never writes NaN.
 bool refine_motion(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T0,
                    const RefineOptions& options, RefineResult* result);
+
+// Partial refinement for a motion the pairs observe only in part (solution remapping: Zhang, Kaess, Singh, "On
+// degeneracy of optimization-based state estimation problems", ICRA 2016): the axes in `locked_axes` (bit k: xi[k])
+// and, with lock_weak, the eigen-directions of the scaled J^T W J at T_from under options.degeneracy_threshold of
+// its largest stay at `prior`; the other directions start from T_from and are refined. The covariance carries no
+// information along the locked directions. Returns false when nothing (or everything) would be locked.
+bool refine_motion_partial(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T_from,
+                           const RigidTransform& prior, int locked_axes, bool lock_weak, const RefineOptions& options,
+                           RefineResult* result);
+
+// T = step * reference with step = (rotation vector, translation) xi = (t, r): the chart the motion prior uses.
+Vec6 motion_difference(const RigidTransform& T, const RigidTransform& reference);
+RigidTransform apply_motion_difference(const Vec6& xi, const RigidTransform& reference);
 
 }  // namespace line_odom
