@@ -1,5 +1,7 @@
 #include "odometry.hpp"
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -325,7 +327,6 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     if (!have) best_stats.best_solver = -2;
     have = true;
     out.held_directions = partial.locked_directions;
-    out.held_basis = partial.locked_basis;
     failure = "partly unobserved motion: " + std::to_string(partial.locked_directions) +
               " of 6 directions held by the motion model";
     break;
@@ -433,13 +434,45 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     if (have && !best_stats.degenerate && best_stats.covariance.allFinite()) {
       result.delta = best;
       result.covariance = best_stats.covariance * reg.covariance_scale;
-      if (have_velocity_ && reg.motion_prior_translation_sigma > 0.0) {
+      const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
+      Mat6 prior = Mat6::Zero();
+      prior.diagonal() << pt * pt, pt * pt, pt * pt, pr * pr, pr * pr, pr * pr;
+      const Vec6 xi = motion_difference(best, prediction);
+      if (outcome.held_directions > 0) {
+        // A partial estimate says nothing along the held directions (covariance zero there, refine.hpp): fused in
+        // information form, the prior alone speaks there; then at least the fallback variance along them.
+        Eigen::SelfAdjointEigenSolver<Mat6> es(result.covariance);
+        const double lmax = std::max(es.eigenvalues()(5), 1e-300);
+        Vec6 inv = Vec6::Zero();
+        Mat6 held = Mat6::Zero();
+        int held_count = 0;
+        for (int k = 0; k < 6; ++k) {
+          if (es.eigenvalues()(k) > 1e-12 * lmax) inv(k) = 1.0 / es.eigenvalues()(k);
+          else held.col(held_count++) = es.eigenvectors().col(k);
+        }
+        const Mat6 information = es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+        if (have_velocity_ && pt > 0.0) {
+          const Mat6 fused_covariance = (prior.inverse() + information).inverse();
+          const Vec6 fused = fused_covariance * (information * xi);
+          if (fused.allFinite() && fused_covariance.allFinite()) {
+            result.delta = apply_motion_difference(fused, prediction);
+            result.covariance = fused_covariance;
+          }
+        }
+        const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
+        for (int k = 0; k < held_count; ++k) {
+          const Vec6 u = held.col(k);
+          const double floor = ts * ts * u.head<3>().squaredNorm() + rs * rs * u.tail<3>().squaredNorm();
+          const double variance = u.dot(result.covariance * u);
+          if (variance < floor) result.covariance += (floor - variance) * u * u.transpose();
+        }
+        result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
+        st.degenerate = true;
+        st.held_directions = outcome.held_directions;
+        st.failure = failure;
+      } else if (have_velocity_ && pt > 0.0) {
         // MAP fusion with the constant-velocity prior on the left perturbation exp(xi) * prediction: directions
         // the lines observe poorly (large covariance) stay with the prediction.
-        const Vec6 xi = motion_difference(best, prediction);
-        const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
-        Mat6 prior = Mat6::Zero();
-        prior.diagonal() << pt * pt, pt * pt, pt * pt, pr * pr, pr * pr, pr * pr;
         const Mat6 gain = prior * (prior + result.covariance).inverse();
         const Vec6 fused = gain * xi;
         if (fused.allFinite()) {
@@ -447,19 +480,6 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
           result.covariance = (Mat6::Identity() - gain) * result.covariance;
           result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
         }
-      }
-      if (outcome.held_directions > 0) {
-        // Along the held directions only the motion model speaks: at least the fallback variance there.
-        const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
-        for (int k = 0; k < outcome.held_directions; ++k) {
-          const Vec6 u = outcome.held_basis.col(k);
-          const double floor = ts * ts * u.head<3>().squaredNorm() + rs * rs * u.tail<3>().squaredNorm();
-          const double variance = u.dot(result.covariance * u);
-          if (variance < floor) result.covariance += (floor - variance) * u * u.transpose();
-        }
-        st.degenerate = true;
-        st.held_directions = outcome.held_directions;
-        st.failure = failure;
       }
       st.solver = solver_name(best_stats.best_solver);
       st.registered = true;

@@ -110,8 +110,7 @@ struct PassOutcome {
   MotionStats stats;
   bool have = false;
   std::string failure;
-  int held_directions = 0;  // of a partial estimate: directions of xi held at the prediction (columns of held_basis)
-  Mat6 held_basis = Mat6::Zero();
+  int held_directions = 0;  // of a partial estimate: directions of xi held at the prediction
 };
 
 class Odometry {

@@ -271,12 +271,13 @@ struct LockedSubspace {
     const Vec6 dx_s = M.ldlt().solve(-(Q * (scale.asDiagonal() * g)));
     return scale.asDiagonal() * dx_s;
   }
-  // H restricted to the free directions (zero information along the locked ones), in xi coordinates.
-  Mat6 free_information(const Mat6& H) const {
+  // H^-1 on the free directions, zero along the locked ones (the pseudo-inverse of Q Hs Q), in xi coordinates.
+  Mat6 free_covariance(const Mat6& H) const {
     const Mat6 Q = free_projector();
+    const Mat6 locked_projector = Mat6::Identity() - Q;
     const Mat6 Hs = scale.asDiagonal() * H * scale.asDiagonal();
-    const Vec6 inv_scale = scale.cwiseInverse();
-    return inv_scale.asDiagonal() * (Q * Hs * Q) * inv_scale.asDiagonal();
+    const Mat6 cov_s = (Q * Hs * Q + locked_projector).inverse() - locked_projector;
+    return scale.asDiagonal() * cov_s * scale.asDiagonal();
   }
 };
 
@@ -334,7 +335,6 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
     if (result) *result = res;
     return false;
   }
-  const Mat6 information = locked ? locked->free_information(ne.H) : ne.H;
   res.T = T;
   res.line_inliers = ne.line_inliers;
   res.line_inlier_weight = ne.line_inlier_weight;
@@ -359,11 +359,16 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
     const int dof = std::max(1, ne.residuals - 6 + (locked ? locked->count : 0));
     const double sigma_floor = 1e-3 * options.line_threshold;
     const double sigma2 = std::max(ne.weighted_sq / dof, sigma_floor * sigma_floor);
-    Eigen::SelfAdjointEigenSolver<Mat6> es(information);
-    const double lmax = std::max(es.eigenvalues()(5), 1e-300);
-    Vec6 inv;
-    for (int k = 0; k < 6; ++k) inv(k) = 1.0 / std::max(es.eigenvalues()(k), 1e-12 * lmax);
-    Mat6 cov = sigma2 * es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+    Mat6 cov;
+    if (locked) {
+      cov = sigma2 * locked->free_covariance(ne.H);
+    } else {
+      Eigen::SelfAdjointEigenSolver<Mat6> es(ne.H);
+      const double lmax = std::max(es.eigenvalues()(5), 1e-300);
+      Vec6 inv;
+      for (int k = 0; k < 6; ++k) inv(k) = 1.0 / std::max(es.eigenvalues()(k), 1e-12 * lmax);
+      cov = sigma2 * es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+    }
     cov = 0.5 * (cov + cov.transpose());
     if (cov.allFinite()) res.covariance = cov;
   }

@@ -37,7 +37,7 @@ struct RefineResult {
   double condition = 0.0;     // smallest / largest eigenvalue of J^T W J with rotations scaled to metres
   bool degenerate = true;
   int iterations = 0;
-  int locked_directions = 0;  // refine_motion_partial: directions held at the prior (no information in covariance)
+  int locked_directions = 0;  // refine_motion_partial: directions held at the prior (covariance zero along them)
   Mat6 locked_basis = Mat6::Zero();  // ... as unit columns 0..locked_directions-1 in xi coordinates
 };
 
@@ -73,8 +73,9 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
 // Partial refinement for a motion the pairs observe only in part (solution remapping: Zhang, Kaess, Singh, "On
 // degeneracy of optimization-based state estimation problems", ICRA 2016): the axes in `locked_axes` (bit k: xi[k])
 // and, with lock_weak, the eigen-directions of the scaled J^T W J at T_from under options.degeneracy_threshold of
-// its largest stay at `prior`; the other directions start from T_from and are refined. The covariance carries no
-// information along the locked directions. Returns false when nothing (or everything) would be locked.
+// its largest stay at `prior`; the other directions start from T_from and are refined. The covariance is zero
+// along the locked directions (the refinement says nothing there: the caller supplies what the prior knows).
+// Returns false when nothing (or everything) would be locked.
 bool refine_motion_partial(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T_from,
                            const RigidTransform& prior, int locked_axes, bool lock_weak, const RefineOptions& options,
                            RefineResult* result);
