@@ -790,8 +790,16 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   const double* __restrict q = points + 3 * static_cast<std::ptrdiff_t>(cell0);
   const double* __restrict t = cell_tau + 2 * static_cast<std::ptrdiff_t>(cell0);
   ScanBuffer::PrefixSums* __restrict next = prefix + 1;
+  // A column's cells are `cols` cells apart, a stride the hardware prefetchers do not follow: the points and
+  // thresholds kPrefetchCells cells to the right are requested into L2 while this column is read.
+  constexpr int kPrefetchCells = 16;
+  const bool prefetch = !horizontal;
   int m = 0;
   for (int k = 0; k < n; ++k, v += stride, q += 3 * stride, t += 2 * stride) {
+    if (prefetch) {
+      __builtin_prefetch(q + 3 * kPrefetchCells, 0, 2);
+      __builtin_prefetch(t + 2 * kPrefetchCells, 0, 2);
+    }
     if (!*v) continue;
     const double x = q[0], y = q[1], z = q[2];
     out_pos[m] = k;
