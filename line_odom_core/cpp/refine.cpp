@@ -341,7 +341,7 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
   res.plane_inliers = ne.plane_inliers;
   res.residual_rms = ne.line_inliers > 0 ? std::sqrt(ne.line_sq / ne.line_inliers) : 0.0;
   if (locked) {
-    // Condition of the free directions alone: the locked ones count as the largest.
+    // Condition of the free directions alone: the locked ones are the `count` zero eigenvalues of Q Hs Q.
     const Mat6 Hs = locked->scale.asDiagonal() * ne.H * locked->scale.asDiagonal();
     const Mat6 Q = locked->free_projector();
     Eigen::SelfAdjointEigenSolver<Mat6> es(Q * Hs * Q, Eigen::EigenvaluesOnly);
