@@ -2,14 +2,20 @@
 import glob
 import os
 
-from pybind11.setup_helpers import ParallelCompile, Pybind11Extension, build_ext, naive_recompile
+import sys
+
+from pybind11.setup_helpers import ParallelCompile, Pybind11Extension, build_ext
 from setuptools import find_packages, setup
 
 PACKAGE = "line_odom"
 VERSION = "0.1.0"
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
 
-ParallelCompile("LINE_ODOM_BUILD_JOBS", default=2, needs_recompile=naive_recompile).install()
+from build_support import HeaderAwareRecompile  # noqa: E402
+
+engine_headers = sorted(glob.glob("line_odom_core/cpp/**/*.hpp", recursive=True))
+ParallelCompile("LINE_ODOM_BUILD_JOBS", default=2, needs_recompile=HeaderAwareRecompile(engine_headers)).install()
 
 
 class AtomicInplaceBuildExt(build_ext):
@@ -43,6 +49,7 @@ core = Pybind11Extension(
     "line_odom_core._core",
     sources,
     include_dirs=[eigen_include_dir(), "line_odom_core/cpp"],
+    depends=engine_headers,  # a header-only change rebuilds the extension too
     cxx_std=17,
     extra_compile_args=compile_flags,
     define_macros=[("LINE_ODOM_VERSION", f'"{VERSION}"'),

@@ -134,11 +134,12 @@ if ! stamp_ok package "$pkg_fp" || ! (cd / && "$PY" -c 'import line_odom' >/dev/
     stamp_set headers "$headers_fp"
     stamp_set engine "$engine_fp"
 elif ! stamp_ok engine "$engine_fp" || ! ext_present; then
-    # .cpp changes only: recompile the .cpp files newer than their objects; a header change: everything
-    force=(--force)
-    stamp_ok headers "$headers_fp" && ext_present && force=()
-    say "engine sources changed: rebuilding line_odom_core._core${force[*]:+ (headers changed: full rebuild)}"
-    "$PY" setup.py -q build_ext --inplace "${force[@]}" --build-temp build/tmp_setup --build-lib build/lib_setup \
+    # The fingerprints say something changed, so --force past distutils' whole-extension check (whole-second
+    # mtimes); the objects older than their .cpp or than any engine header are recompiled (build_support.py).
+    headers_note=""
+    stamp_ok headers "$headers_fp" || headers_note=" (headers changed: every object)"
+    say "engine sources changed: rebuilding line_odom_core._core${headers_note}"
+    "$PY" setup.py -q build_ext --inplace --force --build-temp build/tmp_setup --build-lib build/lib_setup \
         || die "building line_odom_core._core failed"
     stamp_set headers "$headers_fp"
     stamp_set engine "$engine_fp"

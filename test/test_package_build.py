@@ -158,3 +158,30 @@ def test_ros2_run_node_starts_and_exits_cleanly_on_sigint(workspace: Workspace, 
     assert code == 0, f"exit code {code} after SIGINT:\n{output}"
     assert "Traceback" not in output, output
     assert not re.search(r"^\[(ERROR|FATAL)\]", output, re.MULTILINE), output
+
+
+def test_a_changed_header_recompiles_every_engine_object(tmp_path):
+    """setup.py's needs_recompile (build_support.py): pybind11's naive_recompile compares an object with its .cpp
+    only, so after a header change the objects of untouched .cpp files were linked stale beside new ones (seen: a
+    segfault after switching commits with a changed struct). An object is rebuilt when its .cpp or any engine header
+    is newer; otherwise kept."""
+    sys.path.insert(0, str(REPO))
+    try:
+        from build_support import HeaderAwareRecompile
+    finally:
+        sys.path.remove(str(REPO))
+    src, header, other_header, obj = (tmp_path / n for n in ("a.cpp", "types.hpp", "ransac.hpp", "a.o"))
+    for path, mtime in ((src, 100), (header, 100), (other_header, 100), (obj, 200)):
+        path.write_text("x")
+        os.utime(path, (mtime, mtime))
+    needs = HeaderAwareRecompile([str(header), str(other_header)])
+    assert not needs(str(obj), str(src))
+    os.utime(other_header, (300, 300))  # a header a.cpp may include, edited after a.o was built
+    assert needs(str(obj), str(src))
+    os.utime(other_header, (100, 100))
+    os.utime(src, (300, 300))
+    assert needs(str(obj), str(src))
+    assert needs(str(tmp_path / "missing.o"), str(src))
+    # setup.py uses it for the engine and lists the headers as the extension's dependencies
+    setup_text = (REPO / "setup.py").read_text()
+    assert "needs_recompile=HeaderAwareRecompile(engine_headers)" in setup_text and "depends=engine_headers" in setup_text
