@@ -281,6 +281,16 @@ struct LockedSubspace {
   }
 };
 
+// sigma^2 H^-1, the eigenvalues of H floored at 1e-12 of the largest.
+Mat6 covariance_from(const Mat6& H, double sigma2) {
+  Eigen::SelfAdjointEigenSolver<Mat6> es(H);
+  const double lmax = std::max(es.eigenvalues()(5), 1e-300);
+  Vec6 inv;
+  for (int k = 0; k < 6; ++k) inv(k) = 1.0 / std::max(es.eigenvalues()(k), 1e-12 * lmax);
+  Mat6 cov = sigma2 * es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+  return cov;
+}
+
 // Pair weights are relative: scale them to mean 1 over all line pairs so sigma^2 stays in metres^2.
 double pair_weight_scale(const Correspondences& data) {
   if (data.weights.empty()) return 1.0;
@@ -359,16 +369,7 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
     const int dof = std::max(1, ne.residuals - 6 + (locked ? locked->count : 0));
     const double sigma_floor = 1e-3 * options.line_threshold;
     const double sigma2 = std::max(ne.weighted_sq / dof, sigma_floor * sigma_floor);
-    Mat6 cov;
-    if (locked) {
-      cov = sigma2 * locked->free_covariance(ne.H);
-    } else {
-      Eigen::SelfAdjointEigenSolver<Mat6> es(ne.H);
-      const double lmax = std::max(es.eigenvalues()(5), 1e-300);
-      Vec6 inv;
-      for (int k = 0; k < 6; ++k) inv(k) = 1.0 / std::max(es.eigenvalues()(k), 1e-12 * lmax);
-      cov = sigma2 * es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
-    }
+    Mat6 cov = locked ? Mat6(sigma2 * locked->free_covariance(ne.H)) : covariance_from(ne.H, sigma2);
     cov = 0.5 * (cov + cov.transpose());
     if (cov.allFinite()) res.covariance = cov;
   }
