@@ -85,7 +85,9 @@ void mask_kernel(const Rows rows, const FlatMotion motion, double th2, double mi
   std::int64_t meets[kPairBlockSize];
   for (long chunk = begin; chunk < end; chunk += kPairBlockSize) {
     const long chunk_end = std::min(end, chunk + kPairBlockSize);
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC ivdep
+#endif
     for (long i = chunk; i < chunk_end; ++i) {
       const PairTerms o = pair_terms(rows, motion, i);
       meets[i - chunk] = (o.s2 >= min_s2) & (o.f * o.f < th2 * o.s2);
@@ -98,7 +100,9 @@ LINE_ODOM_VECTOR_CLONES
 void residual_kernel(const Rows rows, const double* weights, const FlatMotion motion, double th2, double min_s2,
                      long begin, long end, LineResidualBlock* out) {
   std::int64_t used[LineResidualBlock::kSize];  // 64-bit, as in mask_kernel
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC ivdep
+#endif
   for (long i = begin; i < end; ++i) {
     const PairTerms o = pair_terms(rows, motion, i);
     const long k = i - begin;
