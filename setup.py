@@ -1,7 +1,6 @@
 """Builds line_odom (ament_python) and its C++17 engine line_odom_core._core (pybind11 + Eigen)."""
 import glob
 import os
-
 import sys
 
 from pybind11.setup_helpers import ParallelCompile, Pybind11Extension, build_ext

@@ -268,8 +268,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   auto unobserved_axes = [&](const RigidTransform& T) {
     if (!(reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0)) return 0;
     AxisShares shares;
-    double pair_share = 0.0;
-    axis_support(table, T, thr, ropt.min_line_sine, &pair_share, &shares);
+    axis_support(table, T, thr, ropt.min_line_sine, nullptr, &shares);
     int axes = 0;
     for (int axis = 0; axis < 6; ++axis)
       if ((reg.max_axis_support < 1.0 && shares.weight[axis] >= reg.max_axis_support) ||

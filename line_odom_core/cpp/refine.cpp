@@ -150,14 +150,21 @@ NormalEquations accumulate(const Correspondences& data, const LinePairTable& pai
   return ne;
 }
 
-// Smallest / largest eigenvalue of H with the rotation block scaled by a length so both blocks weigh alike.
-double scaled_condition(const Mat6& H) {
+// S = diag(1, 1, 1, len, len, len) with len = sqrt(trace H_tt / trace H_rr), so that both blocks of S H S weigh
+// alike; false when either block has no information.
+bool block_scale(const Mat6& H, Vec6* s) {
   const double tt = H.topLeftCorner<3, 3>().trace();
   const double tr = H.bottomRightCorner<3, 3>().trace();
-  if (!(tt > 0.0) || !(tr > 0.0)) return 0.0;
-  const double inv_len = std::sqrt(tt / tr);
+  if (!(tt > 0.0) || !(tr > 0.0)) return false;
+  const double len = std::sqrt(tt / tr);
+  *s << 1.0, 1.0, 1.0, len, len, len;
+  return true;
+}
+
+// Smallest / largest eigenvalue of H with the rotation block scaled by a length so both blocks weigh alike.
+double scaled_condition(const Mat6& H) {
   Vec6 s;
-  s << 1.0, 1.0, 1.0, inv_len, inv_len, inv_len;
+  if (!block_scale(H, &s)) return 0.0;
   const Mat6 Hs = s.asDiagonal() * H * s.asDiagonal();
   Eigen::SelfAdjointEigenSolver<Mat6> es(Hs, Eigen::EigenvaluesOnly);
   const double lmax = es.eigenvalues()(5);
@@ -253,7 +260,7 @@ double axis_support(const LinePairTable& pairs, const RigidTransform& T, double 
 namespace {
 
 // Directions of xi held where the start has them (refine_motion_partial): an orthonormal basis `locked` of them in
-// the scaled coordinates xi_s = S^-1 xi, S = diag(1, 1, 1, len, len, len) as in scaled_condition.
+// the scaled coordinates xi_s = S^-1 xi, S = block_scale(H).
 struct LockedSubspace {
   Vec6 scale = Vec6::Ones();
   Mat6 locked = Mat6::Zero();
@@ -406,12 +413,8 @@ bool refine_motion_partial(const Correspondences& data, const LinePairTable& pai
   if (result) *result = RefineResult{};
   if (result) result->T = T_from;
   const NormalEquations ne = accumulate(data, pairs, T_from, options, pair_weight_scale(data));
-  const double tt = ne.H.topLeftCorner<3, 3>().trace();
-  const double tr = ne.H.bottomRightCorner<3, 3>().trace();
-  if (ne.residuals < 6 || !(tt > 0.0) || !(tr > 0.0)) return false;
   LockedSubspace locked;
-  const double len = std::sqrt(tt / tr);
-  locked.scale << 1.0, 1.0, 1.0, len, len, len;
+  if (ne.residuals < 6 || !block_scale(ne.H, &locked.scale)) return false;
   auto lock = [&](Vec6 u) {  // Gram-Schmidt against the directions locked so far
     for (int k = 0; k < locked.count; ++k) u -= locked.locked.col(k).dot(u) * locked.locked.col(k);
     if (u.norm() > 1e-6 && locked.count < 6) locked.locked.col(locked.count++) = u.normalized();
