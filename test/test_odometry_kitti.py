@@ -123,6 +123,23 @@ def test_failed_registration_holds_the_prediction_and_inflates_the_covariance():
     assert r0.stats["solver"] == "none"
 
 
+def test_fusion_with_the_motion_prior_gives_the_information_form_covariance():
+    # Frame 2 is the first with a velocity: with and without the prior it registers from the same prediction, so
+    # the fused covariance must be (P^-1 + C^-1)^-1 of the prior P and the estimate's own C, below both of them.
+    fused = run("07", 6, 3)[1][2]
+    alone = run("07", 6, 3, **{"registration.motion_prior_translation_sigma": 0.0})[1][2]
+    assert not fused.stats["degenerate"] and not alone.stats["degenerate"]
+    config = line_odom_core.load_config("kitti_hdl64", {"downsample": 6})
+    pt = config["registration.motion_prior_translation_sigma"]
+    pr = np.radians(config["registration.motion_prior_rotation_sigma_deg"])
+    prior = np.diag([pt**2] * 3 + [pr**2] * 3)
+    C = alone.covariance
+    expected = np.linalg.inv(np.linalg.inv(prior) + np.linalg.inv(C))
+    np.testing.assert_allclose(fused.covariance, expected, rtol=1e-6, atol=1e-12 * np.abs(expected).max())
+    for bound in (prior, C):
+        assert np.linalg.eigvalsh(bound - fused.covariance).min() > -1e-12 * np.abs(bound).max()
+
+
 def test_runs_are_deterministic_for_a_seed():
     _, a = run("04", 8, frames=3, seed=7)
     _, b = run("04", 8, frames=3, seed=7)

@@ -471,12 +471,13 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
         st.failure = failure;
       } else if (have_velocity_ && pt > 0.0) {
         // MAP fusion with the constant-velocity prior on the left perturbation exp(xi) * prediction: directions
-        // the lines observe poorly (large covariance) stay with the prediction.
+        // the lines observe poorly (large covariance) stay with the prediction. Covariance (I - K) P of the Kalman
+        // update with H = I, K = P (P + C)^-1: (P^-1 + C^-1)^-1, below both the prior's and the estimate's.
         const Mat6 gain = prior * (prior + result.covariance).inverse();
         const Vec6 fused = gain * xi;
         if (fused.allFinite()) {
           result.delta = apply_motion_difference(fused, prediction);
-          result.covariance = (Mat6::Identity() - gain) * result.covariance;
+          result.covariance = (Mat6::Identity() - gain) * prior;
           result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
         }
       }
