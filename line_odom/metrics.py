@@ -8,6 +8,8 @@
   10th frame, ``t_err = |t(inv(dE) dG)| / len`` and ``r_err = angle(inv(dE) dG) / len`` averaged over all
   segments. The path lengths are accumulated in float32 as the devkit does (they decide where a segment ends);
   the errors are computed in double (the devkit's float acos loses precision on small rotation errors).
+- NEES: the normalized estimation error squared of each frame's motion against its reported covariance (Bar-Shalom,
+  Li, Kirubarajan 2001, §5.4): e^T C^-1 e, whose mean over frames is 6 for a consistent 6-DoF covariance.
 """
 from __future__ import annotations
 
@@ -49,6 +51,27 @@ def relative_pose_errors(estimate: np.ndarray, ground_truth: np.ndarray, delta: 
     rel_gt = np.linalg.inv(ground_truth[:-delta]) @ ground_truth[delta:]
     err = np.linalg.inv(rel_gt) @ rel_est
     return np.linalg.norm(err[:, :3, 3], axis=1), rotation_angle_deg(err[:, :3, :3])
+
+
+def motion_errors(delta: np.ndarray, ground_truth_delta: np.ndarray) -> np.ndarray:
+    """Error (N, 6) of frame motions (N, 4, 4) in the chart of the engine's covariance: D = delta inv(truth),
+    (x y z) = D's translation, (rx ry rz) = D's rotation vector (rad), i.e. delta = exp(e) truth."""
+    delta, ground_truth_delta = _check_pair(delta, ground_truth_delta)
+    D = delta @ np.linalg.inv(ground_truth_delta)
+    rotvec = Rotation.from_matrix(D[:, :3, :3]).as_rotvec() if len(D) else np.zeros((0, 3))
+    return np.concatenate([D[:, :3, 3], rotvec], axis=1)
+
+
+def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """Per-frame e^T C^-1 e of errors (N, k) against covariances (N, k, k)."""
+    errors = np.asarray(errors, dtype=float)
+    covariances = np.asarray(covariances, dtype=float)
+    if errors.ndim != 2 or covariances.shape != errors.shape + errors.shape[1:]:
+        raise ValueError(f"errors, covariances: expected (N, k) and (N, k, k), got {errors.shape} and "
+                         f"{covariances.shape}")
+    if len(errors) == 0:
+        return np.zeros(0)
+    return np.einsum("ni,ni->n", errors, np.linalg.solve(covariances, errors[..., None])[..., 0])
 
 
 def umeyama_alignment(source: np.ndarray, target: np.ndarray) -> np.ndarray:

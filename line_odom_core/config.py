@@ -168,6 +168,10 @@ _ENTRIES: list[ConfigEntry] = [
                 "motion, e.g. a highway at 1/64)", 0, 64),
     ConfigEntry("registration.covariance_scale", float, 1.0, "multiplies the refinement's covariance before it is "
                 "reported and fused (the least-squares covariance ignores wrong candidate pairs)", 1e-6, 1e9),
+    ConfigEntry("registration.covariance_per_inlier", bool, False, "covariance_scale multiplies the covariance "
+                "once per inlier constraint, i.e. the frame's error does not shrink with the number of constraints, "
+                "as measured on real sensors (their errors are shared: calibration, surfaces); false: the "
+                "least-squares 1/n", None, None),
     ConfigEntry("registration.motion_prior_translation_sigma", float, 0.0, "1-sigma deviation (m per frame) from "
                 "the constant-velocity prediction; > 0 fuses the estimate with the prediction so poorly observed "
                 "directions follow the motion model (0 = off)", 0.0, 100.0),

@@ -87,6 +87,28 @@ def test_eval_kitti_files_agree_with_evo(tmp_path):
     assert "kitti_t_err_pct" not in ours  # 10 frames, ~8 m: too short for a 100 m segment
 
 
+def test_nees_of_errors_drawn_from_their_covariance_averages_the_dimension():
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    C = A @ A.T + 0.1 * np.eye(6)
+    errors = rng.multivariate_normal(np.zeros(6), C, size=20000)
+    n = metrics.nees(errors, np.broadcast_to(C, (len(errors), 6, 6)))
+    assert abs(n.mean() - 6.0) < 0.15
+    assert abs(metrics.nees(errors, np.broadcast_to(4 * C, (len(errors), 6, 6))).mean() - 1.5) < 0.05
+    with pytest.raises(ValueError, match="errors, covariances"):
+        metrics.nees(errors, C)
+
+
+def test_motion_errors_are_the_chart_of_the_engine_covariance():
+    truth = np.eye(4)[None].repeat(2, axis=0)
+    truth[1, :3, 3] = [1.0, 2.0, 3.0]
+    step = np.eye(4)
+    step[:3, :3] = Rotation.from_rotvec([0.01, -0.02, 0.03]).as_matrix()
+    step[:3, 3] = [0.1, 0.0, -0.2]
+    e = metrics.motion_errors(step @ truth, truth)  # delta = exp(e) truth
+    np.testing.assert_allclose(e, [[0.1, 0.0, -0.2, 0.01, -0.02, 0.03]] * 2, atol=1e-12)
+
+
 def test_umeyama_recovers_a_known_rigid_transform():
     rng = np.random.default_rng(0)
     source = rng.normal(size=(50, 3))

@@ -8,12 +8,16 @@ import pytest
 
 import line_odom_core
 from line_odom.datasets import tum_sequence
-from line_odom.metrics import relative_pose_errors
+from line_odom.metrics import motion_errors, nees, relative_pose_errors
 
 # 60 frames at 1/100: measured mean 3.7 mm / 0.52 deg.
 BOUND_1_100 = (0.008, 1.0)
 # 4 frames at full resolution: measured mean ~4.6 mm / 0.47 deg.
 BOUND_FULL = (0.010, 1.0)
+# Mean NEES / 6 (1 = consistent covariance; bench/covariance.py): measured 0.39 over 60 frames at 1/100 and 1.04
+# over 10 at full resolution with the preset (covariance_per_inlier, scale 3); the least-squares covariance gave
+# 996 and 20945 (100x too confident in sigma).
+NEES_BOUNDS = (0.05, 5.0)
 
 
 def rpe(data, poses):
@@ -35,6 +39,21 @@ def test_sparse_1_100_frame_to_frame_error():
     assert t.mean() < BOUND_1_100[0] and r.mean() < BOUND_1_100[1], (t.mean(), r.mean())
     assert results[-1].stats["points"] <= 64 * 48
     assert sum(res.stats["degenerate"] for res in results) <= 3
+
+
+def frame_nees(data, results):
+    keep = data.pose_valid[:-1] & data.pose_valid[1:]
+    deltas = np.array([r.delta for r in results[1:]])[keep]
+    covariances = np.array([r.covariance for r in results[1:]])[keep]
+    truth = (np.linalg.inv(data.poses[:-1]) @ data.poses[1:])[keep]
+    return nees(motion_errors(deltas, truth), covariances)
+
+
+@pytest.mark.parametrize("frames, downsample", [(60, 10), (10, 1)], ids=["1_100", "full"])
+def test_reported_covariance_is_consistent_with_the_errors(frames, downsample):
+    data, results = run_depth(frames, downsample)
+    mean = frame_nees(data, results).mean() / 6
+    assert NEES_BOUNDS[0] < mean < NEES_BOUNDS[1], mean
 
 
 def test_full_resolution_frame_to_frame_error():

@@ -432,7 +432,9 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     std::string failure = outcome.failure;
     if (have && !best_stats.degenerate && best_stats.covariance.allFinite()) {
       result.delta = best;
-      result.covariance = best_stats.covariance * reg.covariance_scale;
+      const int constraints = std::max(1, best_stats.inliers + best_stats.plane_inliers);
+      result.covariance = best_stats.covariance * (reg.covariance_per_inlier ? reg.covariance_scale * constraints
+                                                                             : reg.covariance_scale);
       const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
       Mat6 prior = Mat6::Zero();
       prior.diagonal() << pt * pt, pt * pt, pt * pt, pr * pr, pr * pr, pr * pr;
@@ -568,6 +570,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.min_sample_pair_share", c.registration.min_sample_pair_share);
   visit("registration.coarse_downsample", c.registration.coarse_downsample);
   visit("registration.covariance_scale", c.registration.covariance_scale);
+  visit("registration.covariance_per_inlier", c.registration.covariance_per_inlier);
   visit("registration.motion_prior_translation_sigma", c.registration.motion_prior_translation_sigma);
   visit("registration.motion_prior_rotation_sigma_deg", c.registration.motion_prior_rotation_sigma_deg);
   visit("registration.partial_updates", c.registration.partial_updates);

@@ -35,6 +35,8 @@ struct RegistrationOptions {
   double guess_preference = 0.0;        // the RANSAC winner must beat the refined guess's weighted inliers by
                                         // this fraction to replace it
   double covariance_scale = 1.0;        // multiplies the refinement's covariance (it ignores candidate errors)
+  bool covariance_per_inlier = false;   // ... once per inlier constraint: sigma^2 (H / n)^-1, a frame's error that
+                                        // does not shrink with the number of constraints (docs/RESULTS.md)
   double motion_prior_translation_sigma = 0.0;  // constant-velocity prior per frame (m); 0: no fusion
   double motion_prior_rotation_sigma_deg = 0.5;
   int max_lines = 3000;                 // lines registered per scan: past this, those of every s-th row and column
