@@ -56,6 +56,21 @@ def test_reported_covariance_is_consistent_with_the_errors(frames, downsample):
     assert NEES_BOUNDS[0] < mean < NEES_BOUNDS[1], mean
 
 
+def test_covariance_per_inlier_scales_by_the_inlier_constraints():
+    data = tum_sequence(2)
+    covariances, stats = [], None
+    for per_inlier in (True, False):
+        config = line_odom_core.load_config("tum_kinect", {"downsample": 10, "registration.covariance_scale": 3.0,
+                                                           "registration.covariance_per_inlier": per_inlier})
+        odom = line_odom_core.Odometry(config)
+        results = [odom.register_depth(data.depth(i), data.K, float(data.stamps[i])) for i in range(2)]
+        covariances.append(results[1].covariance)
+        stats = results[1].stats
+    assert not stats["degenerate"]
+    constraints = stats["inliers"] + stats["plane_inliers"]
+    np.testing.assert_allclose(covariances[0], constraints * covariances[1], rtol=1e-12, atol=0)
+
+
 def test_full_resolution_frame_to_frame_error():
     data, results = run_depth(4, 1)
     t, r = rpe(data, [res.pose for res in results])
