@@ -388,14 +388,15 @@ class ScanLineFitter {
         }
       }
       if (merged) continue;
-      // (a line with too few points is rejected by acceptable() before its fit is read)
-      if (cur.moments.count >= min_points) {
+      // A line with too few points, or too short, is certain to be rejected by acceptable(): it is neither fitted
+      // nor kept (only accepted lines are resolved and emitted).
+      if (cur.moments.count >= min_points && !certainly_short(buf, cur.first, cur.last)) {
         if (!fitted_)
           cur.fit = fit_line(cur.moments, chord_direction(buf, cur.first, cur.last));
         else
           settle_fit(&cur);
+        candidates_.push_back(cur);
       }
-      candidates_.push_back(cur);
       if (++i >= np) break;
       start_line(buf, &cur, pieces_[i].first, pieces_[i].second);
     }
@@ -416,6 +417,33 @@ class ScanLineFitter {
     const double side2 = std::max(squared_norm(v), std::max(side01, side12));
     const double t = std::max(buf.tau[line.first], std::max(buf.tau[line.last], buf.tau[b]));
     return area2 > 4.0 * (t * t) * side2 * (1.0 + 1e-6);
+  }
+
+  // True when every line acceptable() can make of stretch [a, b] is shorter than min_length: its length is the
+  // distance of two of these points along a unit direction, at most the diagonal of their bounding box (up to a
+  // few ulps; margin 1e-6). Most lines are decided by the distance of their end points, a lower bound of it.
+  bool certainly_short(const ScanBuffer& buf, int a, int b) const {
+    const double limit2 = cfg_.min_length * cfg_.min_length * (1.0 - 1e-6);
+    const double ex = buf.x[b] - buf.x[a], ey = buf.y[b] - buf.y[a], ez = buf.z[b] - buf.z[a];
+    if (!(squared_norm(ex, ey, ez) < limit2)) return false;
+    const double x0 = buf.x[a], y0 = buf.y[a], z0 = buf.z[a];
+    F4 lo_x = {x0, x0, x0, x0}, lo_y = {y0, y0, y0, y0}, lo_z = {z0, z0, z0, z0};
+    F4 hi_x = lo_x, hi_y = lo_y, hi_z = lo_z;
+    const I4 lane = {0, 1, 2, 3};
+    for (int k = a; k <= b; k += kLanes) {
+      const I4 in = lane < b + 1 - k;  // lanes past b hold point a
+      const F4 x = in ? load4(buf.x.data() + k) : lo_x, y = in ? load4(buf.y.data() + k) : lo_y;
+      const F4 z = in ? load4(buf.z.data() + k) : lo_z;
+      lo_x = x < lo_x ? x : lo_x, lo_y = y < lo_y ? y : lo_y, lo_z = z < lo_z ? z : lo_z;
+      hi_x = x > hi_x ? x : hi_x, hi_y = y > hi_y ? y : hi_y, hi_z = z > hi_z ? z : hi_z;
+    }
+    double span2 = 0.0;
+    for (const auto& [lo, hi] : {std::pair<F4, F4>{lo_x, hi_x}, {lo_y, hi_y}, {lo_z, hi_z}}) {
+      const double extent = std::max(std::max(hi[0], hi[1]), std::max(hi[2], hi[3])) -
+                            std::min(std::min(lo[0], lo[1]), std::min(lo[2], lo[3]));
+      span2 += extent * extent;
+    }
+    return span2 < limit2;
   }
 
   // The fit of a new line is only needed once it is long enough for the cheap rejection in try_merge.
