@@ -739,32 +739,22 @@ class ScanLineFitter {
 
 // Per-cell split thresholds, computed once for both passes (holes: 1).
 struct CellThresholds {
-  std::vector<double> range;  // scratch
   std::vector<double> tau;    // per cell: tau, 1 / tau^2 interleaved (one memory stream for the column pass)
 };
 
-// Branch-free loops over the cells (vectorized; the same IEEE operations as Vec3::norm and threshold_scale).
+// A branch-free loop over the cells (vectorized; the same IEEE operations as Vec3::norm and threshold_scale).
 LINE_FIT_CLONES void cell_thresholds(const RangeImage& img, const LineFitConfig& cfg, CellThresholds& t) {
   static_assert(sizeof(Vec3) == 3 * sizeof(double), "Vec3 arrays are read as packed x, y, z");
   const size_t n = img.points.size();
-  if (t.range.size() < n) {
-    t.range.resize(n);
-    t.tau.resize(2 * n);
-  }
+  if (t.tau.size() < 2 * n) t.tau.resize(2 * n);
   const double* __restrict xyz = img.points.empty() ? nullptr : img.points[0].data();
   const std::uint8_t* __restrict valid = img.valid.data();
-  double* __restrict tau_out = t.range.data();
   double* __restrict pair_out = t.tau.data();
+  const double split = cfg.split_distance, a = cfg.threshold_per_m, b = cfg.threshold_per_m2;
+  // one pass (-fno-math-errno, setup.py, lets the square root vectorize)
   for (size_t i = 0; i < n; ++i) {
     const double x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
-    tau_out[i] = x * x + y * y + z * z;
-  }
-  // Eigen's array sqrt is the plain IEEE square root, vectorized with or without -fno-math-errno (setup.py)
-  Eigen::Map<Eigen::ArrayXd> range(tau_out, static_cast<Eigen::Index>(n));
-  range = range.sqrt();
-  const double split = cfg.split_distance, a = cfg.threshold_per_m, b = cfg.threshold_per_m2;
-  for (size_t i = 0; i < n; ++i) {
-    const double r = tau_out[i];
+    const double r = std::sqrt(x * x + y * y + z * z);
     const double scaled = split * (1.0 + a * r + b * r * r);
     // valid ? scaled : 1, as a bit select (a branch would keep the loop from vectorizing)
     const std::uint64_t keep = 0 - static_cast<std::uint64_t>(valid[i] != 0);
