@@ -257,12 +257,12 @@ def main(argv=None) -> int:
     if args.only == "sim":
         args.sim = True
 
-    from line_odom_core.config import yaml_load
+    from line_odom.cli import parse_overrides
 
-    overrides = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        overrides[key] = yaml_load(value)
+    try:
+        overrides = parse_overrides(args.set)
+    except ValueError as err:
+        parser.error(str(err))
     kiss = not args.no_kiss and kiss_available()
     if not args.no_kiss and not kiss:
         print(KISS_HINT)

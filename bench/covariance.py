@@ -23,7 +23,7 @@ import numpy as np
 sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 import line_odom_core  # noqa: E402
-from line_odom_core.config import yaml_load  # noqa: E402
+from line_odom.cli import parse_overrides  # noqa: E402
 from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402
 from line_odom.metrics import motion_errors, nees  # noqa: E402
 
@@ -93,12 +93,10 @@ def main(argv=None) -> int:
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="engine overrides by dotted name (YAML values), applied to every run")
     args = parser.parse_args(argv)
-    overrides = {}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            parser.error(f"--set {item!r}: expected KEY=VALUE")
-        overrides[key] = yaml_load(value)
+    try:
+        overrides = parse_overrides(args.set)
+    except ValueError as err:
+        parser.error(str(err))
     print(f"{'data':13} {'res':>5} {'pairs':>5} {'held':>4} {'part':>4} | {'NEES/6':>9} {'median':>8} {'<=95%':>6} | "
           f"rms of e_i / sigma_i: x y z rx ry rz (1 = consistent)")
     if args.only in (None, "kitti"):

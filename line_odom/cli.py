@@ -132,7 +132,7 @@ def cmd_eval(args) -> int:
     return 0
 
 
-def _parse_overrides(items: list[str]) -> dict:
+def parse_overrides(items: list[str]) -> dict:
     """["downsample=6", "ransac.solver=7L"] -> {"downsample": 6, "ransac.solver": "7L"} (values read as YAML)."""
     import yaml
 
@@ -153,7 +153,7 @@ def _parse_overrides(items: list[str]) -> dict:
 def cmd_replay(args) -> int:
     from line_odom import evaluation, replay
 
-    result = replay.replay_bag(args.bag, args.out, params=args.params, overrides=_parse_overrides(args.overrides),
+    result = replay.replay_bag(args.bag, args.out, params=args.params, overrides=parse_overrides(args.overrides),
                                realtime=args.realtime, rate=args.rate,
                                out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
                                frames=args.frames, progress=not args.quiet)

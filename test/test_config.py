@@ -63,7 +63,7 @@ def test_yaml_file_nested_sections_and_unknown_keys_kept_as_extra(tmp_path):
 def test_exponent_floats_without_a_dot_are_numbers_as_in_ros(tmp_path):
     """PyYAML (YAML 1.1) reads 1e-4 as a string; ROS 2's parameter parser reads a double. A parameter file and
     `--set` take it as ROS does; strings stay strings."""
-    from line_odom.cli import _parse_overrides
+    from line_odom.cli import parse_overrides
 
     path = tmp_path / "mine.yaml"
     path.write_text(textwrap.dedent("""
@@ -76,11 +76,11 @@ def test_exponent_floats_without_a_dot_are_numbers_as_in_ros(tmp_path):
     """))
     config = line_odom_core.load_config(str(path))
     assert config["ransac.degeneracy_threshold"] == 1e-4 and config["ransac.inlier_threshold"] == 0.02
-    assert _parse_overrides(["ransac.degeneracy_threshold=1e-9", "registration.max_translation=+5e0",
+    assert parse_overrides(["ransac.degeneracy_threshold=1e-9", "registration.max_translation=+5e0",
                              "ransac.solver=7L", "seed=3", "lines.max_rms=.5e-1"]) == {
         "ransac.degeneracy_threshold": 1e-9, "registration.max_translation": 5.0, "ransac.solver": "7L", "seed": 3,
         "lines.max_rms": 0.05}
-    assert line_odom_core.load_config("kitti_hdl64", _parse_overrides(["ransac.degeneracy_threshold=1e-9"]))[
+    assert line_odom_core.load_config("kitti_hdl64", parse_overrides(["ransac.degeneracy_threshold=1e-9"]))[
         "ransac.degeneracy_threshold"] == 1e-9
     assert cfg.yaml_load("e5") == "e5" and cfg.yaml_load("1e") == "1e" and cfg.yaml_load("0x1e5") == 0x1e5
 
