@@ -269,10 +269,11 @@ struct LockedSubspace {
   Mat6 free_projector() const {
     return Mat6::Identity() - locked.leftCols(count) * locked.leftCols(count).transpose();
   }
+  Mat6 scaled(const Mat6& H) const { return scale.asDiagonal() * H * scale.asDiagonal(); }  // S H S
   // The Gauss-Newton step with no component along the locked directions: (Q Hs Q + c L L^T) dx_s = -Q gs.
   Vec6 step(const Mat6& H, const Vec6& g) const {
     const Mat6 Q = free_projector();
-    const Mat6 Hs = scale.asDiagonal() * H * scale.asDiagonal();
+    const Mat6 Hs = scaled(H);
     const double stiffness = std::max(Hs.trace(), 1e-30);
     const Mat6 M = Q * Hs * Q + stiffness * (Mat6::Identity() - Q);
     const Vec6 dx_s = M.ldlt().solve(-(Q * (scale.asDiagonal() * g)));
@@ -282,7 +283,7 @@ struct LockedSubspace {
   Mat6 free_covariance(const Mat6& H) const {
     const Mat6 Q = free_projector();
     const Mat6 locked_projector = Mat6::Identity() - Q;
-    const Mat6 Hs = scale.asDiagonal() * H * scale.asDiagonal();
+    const Mat6 Hs = scaled(H);
     const Mat6 cov_s = (Q * Hs * Q + locked_projector).inverse() - locked_projector;
     return scale.asDiagonal() * cov_s * scale.asDiagonal();
   }
@@ -359,7 +360,7 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
   res.residual_rms = ne.line_inliers > 0 ? std::sqrt(ne.line_sq / ne.line_inliers) : 0.0;
   if (locked) {
     // Condition of the free directions alone: the locked ones are the `count` zero eigenvalues of Q Hs Q.
-    const Mat6 Hs = locked->scale.asDiagonal() * ne.H * locked->scale.asDiagonal();
+    const Mat6 Hs = locked->scaled(ne.H);
     const Mat6 Q = locked->free_projector();
     Eigen::SelfAdjointEigenSolver<Mat6> es(Q * Hs * Q, Eigen::EigenvaluesOnly);
     const double lmax = es.eigenvalues()(5);
@@ -422,8 +423,7 @@ bool refine_motion_partial(const Correspondences& data, const LinePairTable& pai
   for (int axis = 0; axis < 6; ++axis)
     if (locked_axes & (1 << axis)) lock(Vec6::Unit(axis));
   if (lock_weak) {
-    const Mat6 Hs = locked.scale.asDiagonal() * ne.H * locked.scale.asDiagonal();
-    Eigen::SelfAdjointEigenSolver<Mat6> es(Hs);
+    Eigen::SelfAdjointEigenSolver<Mat6> es(locked.scaled(ne.H));
     const double lmax = es.eigenvalues()(5);
     for (int k = 0; k < 5; ++k)
       if (!(es.eigenvalues()(k) >= options.degeneracy_threshold * lmax)) lock(es.eigenvectors().col(k));
