@@ -431,7 +431,7 @@ class ScanLineFitter {
     F4 hi_x = lo_x, hi_y = lo_y, hi_z = lo_z;
     const I4 lane = {0, 1, 2, 3};
     for (int k = a; k <= b; k += kLanes) {
-      const I4 in = lane < b + 1 - k;  // lanes past b hold point a
+      const I4 in = lane < b + 1 - k;  // lanes past b take the current minima, which move neither bound
       const F4 x = in ? load4(buf.x.data() + k) : lo_x, y = in ? load4(buf.y.data() + k) : lo_y;
       const F4 z = in ? load4(buf.z.data() + k) : lo_z;
       lo_x = x < lo_x ? x : lo_x, lo_y = y < lo_y ? y : lo_y, lo_z = z < lo_z ? z : lo_z;
