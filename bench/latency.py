@@ -3,11 +3,13 @@
 
     .venv/bin/python bench/latency.py                   # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz (300 frames) at 1, 1/100
     .venv/bin/python bench/latency.py --repeat 3 --kiss-threads 1
+    .venv/bin/python bench/latency.py --threads 2 --kiss-threads 2   # both on two threads
 
 Stage times come from the engine's own stopwatch (stats["ms"]); "call" is the wall time of the Python call
 (numpy in, result out). The first frame of each run is left out (nothing to register against). KISS-ICP runs
-single-threaded by default (the goal is stated for one core). Timings on a shared machine are noisy: compare
-the ratio within one run.
+single-threaded by default (the goal is stated for one core), and so does line_odom (--threads sets its `threads`:
+the line fit in blocks on that many threads, stage times then in wall time instead of thread CPU time). Timings on
+a shared machine are noisy: compare the ratio within one run.
 
 At full resolution the presets fit and register the lines of every 4th row and column of a KITTI scan
 (registration.max_lines), each fitted to every point of its row or column. The row "all" runs the same frames with
@@ -80,13 +82,14 @@ def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat, overrides=None)
     return stage_ms, call_ms, kiss_ms
 
 
-def time_depth(level, frames, kiss, kiss_threads, repeat):
+def time_depth(level, frames, kiss, kiss_threads, repeat, overrides=None):
     data = tum_sequence(frames)
     depths = [(data.depth(i), float(data.stamps[i])) for i in range(len(data))]
     stage_ms = {s: [] for s in (*STAGES, "steady", "fitted", "registered")}
     call_ms, kiss_ms = [], []
     for _ in range(repeat):
-        odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": level}))
+        odom = line_odom_core.Odometry(
+            line_odom_core.load_config("tum_kinect", {"downsample": level, **(overrides or {})}))
         kiss_odom = kiss_odometry(5.0, kiss_threads) if kiss else None
 
         def kiss_points(f):
@@ -122,6 +125,7 @@ def main(argv=None) -> int:
     parser.add_argument("--tum-frames", type=int, default=300)  # all of fr1/xyz, as bench/accuracy.py
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--kiss-threads", type=int, default=1)
+    parser.add_argument("--threads", type=int, default=1, help="line_odom's `threads` (0: one per hardware thread)")
     parser.add_argument("--no-kiss", action="store_true")
     parser.add_argument("--only", choices=("kitti", "tum"))
     args = parser.parse_args(argv)
@@ -129,7 +133,9 @@ def main(argv=None) -> int:
     kiss = not args.no_kiss and kiss_available()
     if not args.no_kiss and not kiss:
         print(KISS_HINT)
-    print(f"line_odom_core {line_odom_core.__version__} ({line_odom_core.build_info()['flags']}); KISS-ICP "
+    threads = {"threads": args.threads}
+    print(f"line_odom_core {line_odom_core.__version__} ({line_odom_core.build_info()['flags']}), "
+          f"threads {args.threads}; KISS-ICP "
           f"{'on, ' + str(args.kiss_threads) + ' thread(s)' if kiss else 'off'}; mean ms per frame (p50 and p95 of total;"
           " steady = mean total without each run's first registration, which searches the first motion;"
           " lines = fitted / registered per frame, registration.max_lines; res all = full resolution with"
@@ -142,15 +148,17 @@ def main(argv=None) -> int:
     if args.only in (None, "kitti"):
         frames = list(kitti_frames(args.kitti))
         for level in args.kitti_levels:
-            cases.append(("kitti", level, time_lidar(frames, level, kiss, args.kiss_threads, args.repeat)))
+            cases.append(("kitti", level, time_lidar(frames, level, kiss, args.kiss_threads, args.repeat, threads)))
             print_row(*cases[-1])
             if level == 1:
-                all_lines = time_lidar(frames, 1, False, args.kiss_threads, args.repeat, {"registration.max_lines": 0})
+                all_lines = time_lidar(frames, 1, False, args.kiss_threads, args.repeat,
+                                       {**threads, "registration.max_lines": 0})
                 cases.append(("kitti", ALL_LINES, all_lines))
                 print_row(*cases[-1])
     if args.only in (None, "tum"):
         for level in args.tum_levels:
-            cases.append(("tum", level, time_depth(level, args.tum_frames, kiss, args.kiss_threads, args.repeat)))
+            cases.append(("tum", level, time_depth(level, args.tum_frames, kiss, args.kiss_threads, args.repeat,
+                                                   threads)))
             print_row(*cases[-1])
     return 0
 

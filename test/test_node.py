@@ -449,7 +449,7 @@ def test_parameters_declared_with_descriptors_from_preset_and_params_file(run_no
     params_file = tmp_path / "robot.yaml"
     params_file.write_text("/**:\n  ros__parameters:\n    base_frame: robot_base\n    ransac:\n"
                            "      inlier_threshold: 1\n    registration:\n      passes: 2\n")
-    node, h = run_node({"preset": "tum_kinect", "downsample": 10},
+    node, h = run_node({"preset": "tum_kinect", "downsample": 10, "threads": 2},
                        extra_args=["--params-file", str(params_file)])
     service = node.topic("line_odom")
 
@@ -466,10 +466,11 @@ def test_parameters_declared_with_descriptors_from_preset_and_params_file(run_no
     assert {"input", "odom_frame", "base_frame", "publish_tf", "base_to_sensor", "initial_pose", "path.max_poses",
             "qos.reliable", "preset"} <= set(listed)
     names = ["downsample", "ransac.inlier_threshold", "registration.passes", "base_frame", "input",
-             "candidates.max_distance"]
+             "candidates.max_distance", "threads"]
     values = call(GetParameters, "get_parameters", GetParameters.Request(names=names)).values
     got = dict(zip(names, values))
     assert got["downsample"].integer_value == 10  # -p
+    assert got["threads"].integer_value == 2
     assert got["ransac.inlier_threshold"].type == ParameterType.PARAMETER_DOUBLE
     assert got["ransac.inlier_threshold"].double_value == 1.0  # params file, int accepted for a double
     assert got["registration.passes"].integer_value == 2

@@ -575,8 +575,11 @@ py::tuple translation_2d(py::handle points_a, py::handle points_b, py::handle di
 
 
 // ---- scan features helpers (issue 4, features) ----
+#include <memory>
+
 #include "feature_extraction.hpp"
 #include "range_image.hpp"
+#include "worker_pool.hpp"
 
 namespace feature_bindings {
 
@@ -739,7 +742,9 @@ py::dict lines_dict(const std::vector<LineFeature>& lines) {
   return d;
 }
 
-py::dict extract_features_py(const py::array& xyz, const py::object& config, const std::string& preset) {
+py::dict extract_features_py(const py::array& xyz, const py::object& config, const std::string& preset,
+                             int threads) {
+  if (threads < 1) throw py::value_error("threads: expected >= 1, got " + std::to_string(threads));
   if (xyz.ndim() != 3 || xyz.shape(2) != 3)
     throw py::value_error("range_image: expected an (H, W, 3) organized cloud (NaN or zero = hole)");
   auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(xyz);
@@ -751,7 +756,8 @@ py::dict extract_features_py(const py::array& xyz, const py::object& config, con
   {
     py::gil_scoped_release release;
     const RangeImage img = organize_cloud(a.data(), rows, cols, 3, RangeLimits{});
-    features = extract_features(img, cfg, &stats);
+    std::unique_ptr<WorkerPool> pool = threads > 1 ? std::make_unique<WorkerPool>(threads) : nullptr;
+    features = extract_features(img, cfg, &stats, 1, 0, pool.get());
   }
   py::dict d;
   d["h_lines"] = lines_dict(features.h_lines);
@@ -1046,9 +1052,10 @@ PYBIND11_MODULE(_core, m) {
         "Depth image (H, W) in metres back-projected with K -> range image dict (camera optical frame). "
         "downsample_while_organizing: back-project only the kept pixels (same image; stats count them).");
   m.def("extract_features", &feature_bindings::extract_features_py, py::arg("range_image"),
-        py::arg("config") = py::none(), py::arg("preset") = "kitti",
+        py::arg("config") = py::none(), py::arg("preset") = "kitti", py::kw_only(), py::arg("threads") = 1,
         "Organized cloud (H, W, 3) (NaN/zero = hole) -> dict of H/V lines, planes, cluster directions, stats. "
-        "`config` overrides preset fields by dotted name (see feature_config).");
+        "`config` overrides preset fields by dotted name (see feature_config); `threads`: the line fit's (the same "
+        "features).");
   m.def("feature_config", &feature_bindings::feature_config_py, py::arg("preset") = "kitti",
         "Feature parameters of a preset by dotted name.");
   m.def("sensor_presets", &line_odom::sensor_preset_names, "Names accepted by organize_points(sensor=...).");

@@ -9,6 +9,8 @@
 #include <limits>
 #include <utility>
 
+#include "worker_pool.hpp"
+
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
@@ -699,14 +701,25 @@ CandidateIndex::CandidateIndex(const ScanFeatures& a)
 CandidateIndex::~CandidateIndex() = default;
 
 void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidTransform& T_ab_guess,
-                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats) {
+                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats,
+                      WorkerPool* pool) {
   *out = Correspondences{};
   const ScanFeatures& a = *index.a_;
   std::vector<LinePair> pairs;
   if (options.max_pairs_per_line > 0)  // at most k per line of b
     pairs.reserve(static_cast<size_t>(options.max_pairs_per_line) * (b.v_lines.size() + b.h_lines.size()));
-  match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
-  match_lines(*index.v_, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
+  constexpr size_t kMinSharedLines = 1000;  // fewer lines of b: waking a worker costs about what it saves
+  if (pool != nullptr && pool->threads() > 1 && b.h_lines.size() + b.v_lines.size() >= kMinSharedLines) {
+    std::vector<LinePair> v_pairs;  // each search touches only its own index
+    pool->run(2, [&](int task) {
+      if (task == 0) match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);
+      else match_lines(*index.v_, b.h_lines, T_ab_guess, options, &v_pairs);
+    });
+    pairs.insert(pairs.end(), v_pairs.begin(), v_pairs.end());
+  } else {
+    match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
+    match_lines(*index.v_, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
+  }
 
   // Cluster of the pair: the previous frame's normal cluster (paper §6.3), else the current frame's.
   std::array<int, 4> counts{};

@@ -13,6 +13,8 @@
 
 namespace line_odom {
 
+class WorkerPool;
+
 struct CandidateOptions {
   double max_distance = 2.0;           // segment-to-segment distance under the guess (2 m KITTI)
   double min_line_angle_deg = 10.0;    // skip near-parallel pairs: their intersection constrains little
@@ -45,7 +47,7 @@ class CandidateIndex {
 
  private:
   friend void build_candidates(CandidateIndex&, const ScanFeatures&, const RigidTransform&, const CandidateOptions&,
-                               Correspondences*, CandidateStats*);
+                               Correspondences*, CandidateStats*, WorkerPool*);
   const ScanFeatures* a_;
   std::unique_ptr<Lines> h_, v_;
 };
@@ -54,7 +56,9 @@ class CandidateIndex {
 // segments, weights and clusters; plane pairs) in a deterministic order, the same for a fresh or a reused index.
 // Repeated calls with the same b object (unchanged in between, as in the passes of one frame) re-check the boxes the
 // first call found near each line of b instead of scanning all, where the guesses allow: the same result.
+// With a pool of several threads, the H x V and the V x H pairs are searched on two of them (the same result).
 void build_candidates(CandidateIndex& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
-                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr);
+                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr,
+                      WorkerPool* pool = nullptr);
 
 }  // namespace line_odom

@@ -49,7 +49,8 @@ void set_feature_config_field(FeatureConfig* config, const std::string& name, do
 
 // Lines fitted on every scan_step-th row and column; past max_lines (0: no budget) only those of every s-th row and
 // column are kept for normals, planes and the result (line_selection.hpp).
+// With a pool of several threads the line fit runs on all of them (the same lines) and the stage times are wall time.
 ScanFeatures extract_features(const RangeImage& image, const FeatureConfig& config, FeatureStats* stats = nullptr,
-                              int scan_step = 1, int max_lines = 0);
+                              int scan_step = 1, int max_lines = 0, WorkerPool* pool = nullptr);
 
 }  // namespace line_odom

@@ -48,7 +48,11 @@ struct ScanLines {
   std::vector<std::int32_t> v_label;
 };
 
-ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config, int scan_step = 1);
+class WorkerPool;
+
+// Rows and columns every scan_step-th; with a pool of several threads, in blocks on all of them (the same lines).
+ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config, int scan_step = 1,
+                         WorkerPool* pool = nullptr);
 
 // Least-squares line through points: centroid, unit principal direction, rms of the orthogonal distances.
 struct LineLeastSquares {

@@ -7,6 +7,8 @@
 #include <cmath>
 #include <numeric>
 #include <stdexcept>
+#include <string>
+#include <thread>
 
 #include "line_pair_table.hpp"
 #include "line_selection.hpp"
@@ -69,6 +71,11 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   if (config_.registration.max_lines < 0) throw std::invalid_argument("registration.max_lines: expected >= 0");
   if (config_.registration.first_motion_pairs_per_line < 0)
     throw std::invalid_argument("registration.first_motion_pairs_per_line: expected >= 0");
+  if (config_.threads < 0 || config_.threads > 256)
+    throw std::invalid_argument("threads: expected 0 (one per hardware thread) to 256, got " +
+                                std::to_string(config_.threads));
+  const int threads = config_.threads > 0 ? config_.threads : static_cast<int>(std::thread::hardware_concurrency());
+  if (threads > 1) pool_ = std::make_shared<WorkerPool>(threads);
 }
 
 void Odometry::reset(const RigidTransform& pose) {
@@ -185,7 +192,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   for (int pass = 0; pass < reg.passes; ++pass) {
     stage = Stopwatch();
     if (!prev_index) prev_index = std::make_unique<CandidateIndex>(prev);
-    build_candidates(*prev_index, cur, best, copt, &corr, &cstats);
+    build_candidates(*prev_index, cur, best, copt, &corr, &cstats, pool_.get());
     st->ms.candidates += stage.ms();
     st->candidates = cstats.line_pairs;
     st->plane_candidates = cstats.plane_pairs;
@@ -373,7 +380,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   stage = Stopwatch();
   FeatureStats fstats;
   ScanFeatures features =
-      extract_features(*input, config_.features, &fstats, fit_step_, config_.registration.max_lines);
+      extract_features(*input, config_.features, &fstats, fit_step_, config_.registration.max_lines, pool_.get());
   st.ms.features = stage.ms();
   st.ms.lines = fstats.lines_ms;
   st.ms.normals = fstats.normals_ms;
@@ -390,7 +397,8 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   const int coarse_step = config_.registration.coarse_downsample;
   if (!have_velocity_ && coarse_step > 0 && coarse_step != config_.downsample) {
     stage = Stopwatch();
-    coarse_features = extract_features(downsample(image, coarse_step / organized_step), config_.features);
+    coarse_features =
+        extract_features(downsample(image, coarse_step / organized_step), config_.features, nullptr, 1, 0, pool_.get());
     st.ms.features += stage.ms();
   }
 
@@ -530,6 +538,7 @@ template <typename Config, typename Visit>
 void visit_settings(Config& c, Visit&& visit) {
   visit("downsample", c.downsample);
   visit("seed", c.seed);
+  visit("threads", c.threads);
   visit("sensor.model", c.sensor.model);
   visit("sensor.rows", c.sensor.rows);
   visit("sensor.cols", c.sensor.cols);

@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <utility>
 #include <variant>
@@ -17,6 +18,7 @@
 #include "range_image.hpp"
 #include "scan_features.hpp"
 #include "types.hpp"
+#include "worker_pool.hpp"
 
 namespace line_odom {
 
@@ -66,6 +68,7 @@ SensorModel make_sensor_model(const SensorOptions& options);
 struct OdometryConfig {
   int downsample = 1;  // keep every n-th row and column (paper §6.1)
   std::uint64_t seed = 0;
+  int threads = 1;     // threads of the line fit (worker_pool.hpp); 0: one per hardware thread. Same results.
   SensorOptions sensor;
   FeatureConfig features;  // lines.*, normals.*, planes.*
   CandidateOptions candidates;
@@ -162,6 +165,7 @@ class Odometry {
   int fit_step_ = 1;  // rows and columns the next scan's lines are fitted on (line_selection.hpp)
   ScanFeatures prev_features_;
   ScanFeatures prev_coarse_features_;
+  std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 
 // Dotted settings ("ransac.max_iterations", ...) as in the ROS parameters and YAML presets.
