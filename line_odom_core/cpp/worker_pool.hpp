@@ -26,7 +26,7 @@ class WorkerPool {
 
   // Runs task(0) ... task(count - 1) on the workers and the calling thread and returns when all have finished.
   // The first exception a task throws is rethrown here (the other tasks still run). Calls from several threads
-  // take turns.
+  // take turns; a task must not call run itself.
   void run(int count, const std::function<void(int)>& task);
 
  private:
