@@ -1012,9 +1012,9 @@ void fit_block(const RangeImage& image, const LineFitConfig& config, const CellT
   thread_local ScanLineFitter fitter;
   fitter.configure(config);
   const int min_points = block->horizontal ? config.min_points_h : config.min_points_v;
-  fit_pass(image, thresholds, block->horizontal, min_points, fitter, buf, block->first ? frame_lines : &block->own_lines,
-           labels, scan_step,
-           block->begin, block->end);
+  std::vector<LineFeature>* lines = block->first ? frame_lines : &block->own_lines;
+  fit_pass(image, thresholds, block->horizontal, min_points, fitter, buf, lines, labels, scan_step, block->begin,
+           block->end);
 }
 
 // A pass split into `parts` blocks of whole scans, aligned to scan_step.
