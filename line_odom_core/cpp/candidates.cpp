@@ -709,11 +709,11 @@ void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidT
   if (options.max_pairs_per_line > 0)  // at most k per line of b
     pairs.reserve(static_cast<size_t>(options.max_pairs_per_line) * (b.v_lines.size() + b.h_lines.size()));
   constexpr size_t kMinSharedLines = 1000;  // fewer lines of b: waking a worker costs about what it saves
-  if (pool != nullptr && pool->threads() > 1 && b.h_lines.size() + b.v_lines.size() >= kMinSharedLines) {
+  if (has_workers(pool) && b.h_lines.size() + b.v_lines.size() >= kMinSharedLines) {
     std::vector<LinePair> v_pairs;  // each search touches only its own index
     pool->run(2, [&](int task) {
-      if (task == 0) match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);
-      else match_lines(*index.v_, b.h_lines, T_ab_guess, options, &v_pairs);
+      if (task == 0) match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
+      else match_lines(*index.v_, b.h_lines, T_ab_guess, options, &v_pairs);       // V_a x H_b
     });
     pairs.insert(pairs.end(), v_pairs.begin(), v_pairs.end());
   } else {

@@ -137,7 +137,7 @@ ScanFeatures extract_features(const RangeImage& image, const FeatureConfig& conf
                               int scan_step, int max_lines, WorkerPool* pool) {
   config.validate();
   FeatureStats st;
-  const StageClock clock(pool != nullptr && pool->threads() > 1);
+  const StageClock clock(has_workers(pool));
   auto t0 = clock.now();
   ScanLines lines = fit_scan_lines(image, config.lines, scan_step, pool);
   st.fitted_h_lines = static_cast<int>(lines.h_lines.size());

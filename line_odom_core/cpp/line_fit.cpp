@@ -1071,10 +1071,9 @@ ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config, i
   constexpr size_t kMinSharedPoints = 1 << 15;  // ~0.5 ms of fitting (a full KITTI frame: 262k, every 4th: 66k)
   const size_t fitted_points = static_cast<size_t>((image.rows + scan_step - 1) / scan_step) * image.cols +
                                static_cast<size_t>((image.cols + scan_step - 1) / scan_step) * image.rows;
-  const bool shared = pool != nullptr && pool->threads() > 1 && fitted_points >= kMinSharedPoints;
+  const bool shared = has_workers(pool) && fitted_points >= kMinSharedPoints;
   const int parts = shared ? 2 * pool->threads() : 1;
   std::vector<ScanBlock> blocks;
-  blocks.reserve(2 * parts);
   add_blocks(true, image.rows, scan_step, parts, &blocks);
   add_blocks(false, image.cols, scan_step, parts, &blocks);
   auto lines_of = [&](const ScanBlock& b) { return b.horizontal ? &out.h_lines : &out.v_lines; };

@@ -46,4 +46,7 @@ class WorkerPool {
   std::exception_ptr error_;
 };
 
+// True when `pool` can run tasks beside the calling thread (null or a single thread: it cannot).
+inline bool has_workers(const WorkerPool* pool) { return pool != nullptr && pool->threads() > 1; }
+
 }  // namespace line_odom
