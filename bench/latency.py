@@ -3,13 +3,15 @@
 
     .venv/bin/python bench/latency.py                   # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz (300 frames) at 1, 1/100
     .venv/bin/python bench/latency.py --repeat 3 --kiss-threads 1
-    .venv/bin/python bench/latency.py --threads 2 --kiss-threads 2   # both on two threads
+    .venv/bin/python bench/latency.py --threads 2       # line_odom's line fit and line-pair search on two threads
 
 Stage times come from the engine's own stopwatch (stats["ms"]); "call" is the wall time of the Python call
 (numpy in, result out). The first frame of each run is left out (nothing to register against). KISS-ICP runs
 single-threaded by default (the goal is stated for one core), and so does line_odom (--threads sets its `threads`:
-the line fit in blocks on that many threads, stage times then in wall time instead of thread CPU time). Timings on
-a shared machine are noisy: compare the ratio within one run.
+the line fit and the line-pair search on that many threads, feature stage times then in wall time instead of thread
+CPU time). KISS-ICP on several threads (--kiss-threads) leaves its TBB workers spinning between frames, which slows
+line_odom in the same process: time line_odom's threads without it. Timings on a shared machine are noisy: compare
+the ratio within one run.
 
 At full resolution the presets fit and register the lines of every 4th row and column of a KITTI scan
 (registration.max_lines), each fitted to every point of its row or column. The row "all" runs the same frames with

@@ -33,8 +33,8 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("downsample", int, 1, "keep every n-th row and column of the range image (1 = full resolution, "
                 "6 = 1/36, 8 = 1/64, 10 = 1/100)", 1, 64),
     ConfigEntry("seed", int, 0, "random seed of every sampling step (runs are deterministic for a seed)", 0, 2**62),
-    ConfigEntry("threads", int, 1, "threads of the line fit (0 = one per hardware thread); the results do not depend "
-                "on it", 0, 256),
+    ConfigEntry("threads", int, 1, "threads of the line fit and the line-pair search (0 = one per hardware thread); "
+                "the results do not depend on it", 0, 256),
     # --- organizing the input (paper §6.2) ---
     ConfigEntry("sensor.model", str, "hdl64", "how unorganized clouds map onto rows (beams) and columns (azimuth):"
                 " hdl64 (= kitti), vlp16, os128, or uniform (sensor.rows beams evenly spaced between the "

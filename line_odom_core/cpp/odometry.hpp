@@ -68,7 +68,8 @@ SensorModel make_sensor_model(const SensorOptions& options);
 struct OdometryConfig {
   int downsample = 1;  // keep every n-th row and column (paper §6.1)
   std::uint64_t seed = 0;
-  int threads = 1;     // threads of the line fit (worker_pool.hpp); 0: one per hardware thread. Same results.
+  int threads = 1;  // of the line fit and the line-pair search (worker_pool.hpp); 0: one per hardware thread. Same
+                    // results.
   SensorOptions sensor;
   FeatureConfig features;  // lines.*, normals.*, planes.*
   CandidateOptions candidates;
