@@ -55,7 +55,7 @@ def run_kitti(seqs, levels, overrides) -> None:
         for level in levels:
             odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": level,
                                                                                       **overrides}))
-            results = [odom.register_points(np.ascontiguousarray(data.points(i)[:, :3]), float(data.times[i]))
+            results = [odom.register_points(data.xyz(i), float(data.times[i]))
                        for i in range(len(data))]
             summarize(f"KITTI {seq}", level, results, data.poses)
 

@@ -41,7 +41,7 @@ STAGES = ("organize", "downsample", "features", "lines", "candidates", "ransac",
 def kitti_frames(seqs):
     for seq in seqs:
         data = kitti_sequence(seq)
-        yield seq, [(np.ascontiguousarray(data.points(i)[:, :3]), float(data.times[i])) for i in range(len(data))]
+        yield seq, [(data.xyz(i), float(data.times[i])) for i in range(len(data))]
 
 
 def time_frames(register, kiss_odom, kiss_points, inputs, stage_ms, call_ms, kiss_ms):

@@ -97,6 +97,10 @@ class KittiSequence:
     def points(self, i: int) -> np.ndarray:
         return read_kitti_bin(self.scan_paths[i])
 
+    def xyz(self, i: int) -> np.ndarray:
+        """Scan i's points (N, 3) float32, contiguous: what Odometry.register_points reads in place."""
+        return np.ascontiguousarray(self.points(i)[:, :3])
+
 
 def kitti_sequence(seq: str, frames: int | None = None) -> KittiSequence:
     """A sequence of the shared KITTI mini set ("00", "04", "07")."""

@@ -9,10 +9,6 @@ from line_odom.datasets import kitti_sequence
 from line_odom.metrics import relative_pose_errors
 
 
-def points(data, i):
-    return np.ascontiguousarray(data.points(i)[:, :3])
-
-
 def kept(features, step):
     return sum(int(np.count_nonzero(features[k]["scan_index"] % step == 0)) for k in ("h_lines", "v_lines"))
 
@@ -20,7 +16,7 @@ def kept(features, step):
 @pytest.fixture(scope="module")
 def kitti_frame():
     data = kitti_sequence("07", 1)
-    return points(data, 0)
+    return data.xyz(0)
 
 
 @pytest.mark.parametrize("budget", [3000, 1200])
@@ -40,12 +36,12 @@ def test_step_is_the_smallest_within_the_budget(kitti_frame, budget):
 def test_later_scans_fit_only_the_rows_and_columns_they_keep():
     data = kitti_sequence("07", 3)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64"))
-    stats = [odom.register_points(points(data, i), float(data.times[i])).stats for i in range(3)]
+    stats = [odom.register_points(data.xyz(i), float(data.times[i])).stats for i in range(3)]
     assert stats[0]["fit_step"] == 1 and stats[0]["line_step"] == 4  # ~10,700 lines fitted, every 4th kept
     for i in (1, 2):
         assert stats[i]["fit_step"] == 4 and stats[i]["line_step"] == 4
         # exactly the lines a full fit has on rows and columns 0, 4, 8, ...: each scan is fitted on its own
-        image = line_odom_core.organize_points(points(data, i), sensor="hdl64", min_range=2.5, max_range=120.0)
+        image = line_odom_core.organize_points(data.xyz(i), sensor="hdl64", min_range=2.5, max_range=120.0)
         everything = line_odom_core.extract_features(image["points"], preset="kitti")
         assert stats[i]["h_lines"] + stats[i]["v_lines"] == stats[i]["registered_lines"] == kept(everything, 4)
         assert stats[i]["ms"]["lines"] < stats[0]["ms"]["lines"]
@@ -71,7 +67,7 @@ def test_budget_keeps_full_resolution_accuracy():
     config = line_odom_core.load_config("kitti_hdl64")
     assert config["registration.max_lines"] > 0
     odom = line_odom_core.Odometry(config)
-    results = [odom.register_points(points(data, i), float(data.times[i])) for i in range(len(data))]
+    results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in range(len(data))]
     assert all(1 < r.stats["line_step"] and r.stats["registered_lines"] <= config["registration.max_lines"]
                for r in results)
     t, r = relative_pose_errors(np.array([res.pose for res in results]), data.poses)
@@ -81,7 +77,7 @@ def test_budget_keeps_full_resolution_accuracy():
 def test_a_budget_below_one_row_still_gives_a_finite_pose(kitti_frame):
     data = kitti_sequence("07", 2)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"registration.max_lines": 1}))
-    results = [odom.register_points(points(data, i), float(data.times[i])) for i in range(2)]
+    results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in range(2)]
     assert np.isfinite(results[1].pose).all()
     # only the lines of row and column 0 are left: nothing to register with, the prediction is held and said so
     assert results[1].stats["registered_lines"] <= results[1].stats["h_lines"] + results[1].stats["v_lines"]

@@ -25,14 +25,10 @@ BOUNDS_1_64 = {"00": (0.30, 0.40), "04": (0.10, 0.10), "07": (0.04, 0.10)}
 BOUND_FULL_07 = (0.02, 0.05)
 
 
-def points(data, i):
-    return np.ascontiguousarray(data.points(i)[:, :3])
-
-
 def run(seq, downsample, frames=None, **overrides):
     data = kitti_sequence(seq, frames)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": downsample, **overrides}))
-    results = [odom.register_points(points(data, i), float(data.times[i])) for i in range(len(data))]
+    results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in range(len(data))]
     return data, results
 
 
@@ -89,12 +85,12 @@ def test_reset_starts_again_from_the_given_pose():
     data = kitti_sequence("07", 3)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 8}))
     for i in range(2):
-        odom.register_points(points(data, i), float(data.times[i]))
+        odom.register_points(data.xyz(i), float(data.times[i]))
     start = np.eye(4)
     start[:3, 3] = [10.0, -2.0, 0.5]
     start[:3, :3] = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     odom.reset(start)
-    res = odom.register_points(points(data, 2), float(data.times[2]))
+    res = odom.register_points(data.xyz(2), float(data.times[2]))
     np.testing.assert_allclose(res.pose, start)
     assert res.stats["solver"] == "none" and odom.frames == 1
     with pytest.raises(ValueError, match="pose"):
@@ -104,8 +100,8 @@ def test_reset_starts_again_from_the_given_pose():
 def test_failed_registration_holds_the_prediction_and_inflates_the_covariance():
     data = kitti_sequence("07", 3)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 6}))
-    r0 = odom.register_points(points(data, 0), float(data.times[0]))
-    r1 = odom.register_points(points(data, 1), float(data.times[1]))
+    r0 = odom.register_points(data.xyz(0), float(data.times[0]))
+    r1 = odom.register_points(data.xyz(1), float(data.times[1]))
     # A scan with nothing to register against: points scattered at random (no lines, no planes).
     rng = np.random.default_rng(0)
     noise = rng.uniform(-40, 40, size=(20000, 3)).astype(np.float32)
@@ -184,8 +180,8 @@ def test_bad_input_raises_value_error_naming_the_argument():
 def test_registration_releases_the_gil():
     data = kitti_sequence("07", 2)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 1}))
-    odom.register_points(points(data, 0), 0.0)
-    xyz = points(data, 1)
+    odom.register_points(data.xyz(0), 0.0)
+    xyz = data.xyz(1)
     ticks = 0
     worker = threading.Thread(target=odom.register_points, args=(xyz, 0.1))
     worker.start()

@@ -12,14 +12,10 @@ import line_odom_core
 from line_odom.datasets import kitti_sequence, tum_sequence
 
 
-def points(data, i):
-    return np.ascontiguousarray(data.points(i)[:, :3])
-
-
 @pytest.fixture(scope="module")
 def kitti07():
     data = kitti_sequence("07", 4)
-    return [(points(data, i), float(data.times[i])) for i in range(len(data))]
+    return [(data.xyz(i), float(data.times[i])) for i in range(len(data))]
 
 
 def assert_same_features(a, b):
