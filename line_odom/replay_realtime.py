@@ -77,6 +77,17 @@ def header_stamp_ns(raw: bytes) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
+def die_with_parent() -> None:
+    """In a child before exec: SIGTERM it when the process that started it dies (a killed replay or test leaves
+    no node behind)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is not None:
         return
@@ -130,7 +141,8 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         total = min(total, frames)
     log_file = Path(tempfile.mkstemp(prefix="line_odom_node_", suffix=".log")[1])
     with open(log_file, "wb") as log:
-        proc = subprocess.Popen(node_command(inp, preset, overrides), env=env, stdout=log, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(node_command(inp, preset, overrides), env=env, stdout=log, stderr=subprocess.STDOUT,
+                                preexec_fn=die_with_parent)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("line_odom_replay", context=context)
@@ -149,7 +161,20 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
     sub = node.create_subscription(Odometry, NODE_OUTPUT_TOPIC, on_odom, QoSProfile(depth=1000))
     executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinning = threading.Event()
+    spinning.set()
+
+    def spin():
+        # Own loop, stopped and joined before anything is torn down: rclpy's executor.shutdown() returns while
+        # executor.spin() may still be inside a wait on the node being destroyed.
+        while spinning.is_set():
+            try:
+                executor.spin_once(timeout_sec=0.05)
+            except Exception:  # noqa: BLE001 - the context shut down under the wait
+                if spinning.is_set():
+                    raise
+
+    spinner = threading.Thread(target=spin, daemon=True)
     spinner.start()
     published: dict[int, float] = {}
     try:
@@ -193,11 +218,12 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
                     break
             time.sleep(0.05)
     finally:
+        spinning.clear()
+        spinner.join(timeout=5.0)
+        _stop(proc)
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.shutdown(context=context)
-        _stop(proc)
-        spinner.join(timeout=2.0)
     with lock:
         items = sorted(received.items())
     stamps, poses, msgs, latencies = [], [], [], []

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from line_odom.replay_realtime import die_with_parent
+
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = str(ROOT / "config" / "fastdds_large_messages.xml")
 PROFILE_ENV = {"FASTDDS_DEFAULT_PROFILES_FILE": PROFILE, "FASTRTPS_DEFAULT_PROFILES_FILE": PROFILE,
@@ -26,16 +28,6 @@ PROFILE_ENV = {"FASTDDS_DEFAULT_PROFILES_FILE": PROFILE, "FASTRTPS_DEFAULT_PROFI
 def use_large_message_profile() -> None:
     """Fast DDS reads the profile once per process, at its first participant: call before any rclpy.init."""
     os.environ.update(PROFILE_ENV)
-
-
-def _die_with_parent() -> None:
-    """In the child before exec: SIGTERM it when the test process dies (a killed pytest leaves no node behind)."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
 
 
 def _ros_value(value) -> str:
@@ -61,7 +53,7 @@ class NodeProcess:
         args += extra_args or []
         self.log = tempfile.NamedTemporaryFile("w+", prefix="line_odom_node_", suffix=".log", delete=False)
         self.proc = subprocess.Popen(args, cwd=str(ROOT), env={**env, **PROFILE_ENV}, stdout=self.log,
-                                     stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)
+                                     stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
 
     def output(self) -> str:
         self.log.flush()
