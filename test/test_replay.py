@@ -2,6 +2,9 @@
 missing ground truth, the output bag, determinism, the realtime mode over DDS and the demo."""
 import json
 import shutil
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -141,6 +144,41 @@ def test_realtime_replay_over_dds(tmp_path, ros_env, tum_bags):
     assert m["latency_mean_ms"] > 0 and m["latency_p95_ms"] < 5000
     assert m["rpe_trans_mean_m"] < 2 * TUM_RPE_T, m  # skipped frames make longer steps for the motion model
     assert main(["replay", str(tum_bags["sqlite3"]), "--out", str(out), "--realtime", "--rate", "0"]) == 1
+
+
+DIE_WITH_PARENT_PARENT = r"""
+import subprocess, sys, time
+from line_odom.replay_realtime import die_with_parent
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"], preexec_fn=die_with_parent)
+print(child.pid, flush=True)
+time.sleep(120)
+"""
+
+
+def test_the_node_child_of_a_killed_replay_does_not_outlive_it():
+    """replay --realtime starts the node with die_with_parent: SIGKILL of the replay (no cleanup runs) ends it."""
+    parent = subprocess.Popen([sys.executable, "-c", DIE_WITH_PARENT_PARENT], stdout=subprocess.PIPE, text=True)
+    try:
+        child_pid = int(parent.stdout.readline())
+        assert _alive(child_pid)
+        parent.kill()
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while _alive(child_pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(child_pid), "the child outlived its SIGKILLed parent"
+    finally:
+        parent.kill()
+        parent.wait()
+
+
+def _alive(pid: int) -> bool:
+    """Running (not a zombie): a dead orphan is reaped by init, a dead child of a live parent is a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
 
 
 def test_demo_small(tmp_path, capsys):
