@@ -140,7 +140,7 @@ REALTIME_BOUND_S = 240.0  # the run below takes ~15 s on a loaded 2-core machine
 
 def _replay_process(args: list[str], env: dict) -> subprocess.CompletedProcess:
     """`python -m line_odom replay ...` as a user runs it, in its own process: the DDS participants live there.
-    Fast DDS 2.14's shared-memory transport has known deadlocks under load (eProsima/Fast-DDS#6484,
+    Fast DDS 2.14's shared-memory transport has known deadlocks under load (eProsima/Fast-DDS#6485,
     ros2/rmw_fastrtps#908); a run still going after REALTIME_BOUND_S gets SIGABRT, which makes Python print every
     thread's stack (PYTHONFAULTHANDLER), and is run once more. A second hang, or any wrong result, fails."""
     hung = []
