@@ -4,6 +4,7 @@
     .venv/bin/python bench/accuracy.py                  # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz at 1, 1/100
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels 6
     .venv/bin/python bench/accuracy.py --sim            # + the simulated 1 km street drive (KITTI devkit metric)
+    .venv/bin/python bench/accuracy.py --only sim --sim-sensor vlp16   # the same street with a 16-beam LiDAR
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal of issue 4 is met. KISS-ICP (a benchmark-only dependency:
@@ -194,8 +195,13 @@ def print_table(rows: list[Row]) -> None:
         print(format_row(row))
 
 
-def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6)) -> None:
-    """Simulated street drive (line_odom.sim: HDL-64, 10 m/s, 10 Hz, 1 cm range noise), KITTI devkit metric."""
+SIM_PRESETS = {"hdl64": "kitti_hdl64", "vlp16": "vlp16", "os128": "ouster_os128"}
+
+
+def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64") -> None:
+    """Simulated street drive (line_odom.sim: 10 m/s, 10 Hz, 1 cm range noise), KITTI devkit metric. HDL-64 with
+    kitti_hdl64 at each of `levels`; VLP-16 / OS-128 with their own presets at the presets' resolution (the issue's
+    goals are for the HDL-64 rows)."""
     try:
         from line_odom import sim
     except ImportError as err:
@@ -203,18 +209,21 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6)) -> None:
         return
     from line_odom.metrics import kitti_errors
 
-    run = sim.make("street", frames=frames, seed=0, noise_std=0.01)
+    run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor)
     gt = np.array(run.trajectory.poses)
     length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
-    print(f"\nsimulated street drive: {frames} scans, {length:.0f} m (KITTI devkit metric over 100..800 m segments)")
+    preset = SIM_PRESETS[sensor]
+    print(f"\nsimulated street drive, {sensor} ({preset}): {frames} scans, {length:.0f} m (KITTI devkit metric over "
+          f"100..800 m segments)")
     print(f"{'res':5} | {'line_odom t_err [%]':>20} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | "
-          f"{'KISS-ICP t_err [%]':>19} {'r_err [deg/m]':>14} {'RPE t [m]':>10} | goal", flush=True)
-    for level in levels:
-        goal_pct = 1.0 if level == 1 else 3.0
-        config = line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides})
+          f"{'KISS-ICP t_err [%]':>19} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | goal", flush=True)
+    for level in (levels if sensor == "hdl64" else (None,)):
+        level_over = {} if level is None else {"downsample": level}
+        config = line_odom_core.load_config(preset, {**level_over, **overrides})
+        step = config["downsample"]
         odom = line_odom_core.Odometry(config)
         kiss_odom = kiss_odometry(100.0) if kiss else None
-        est, kiss_est, ms = [], [], []
+        est, kiss_est, ms, kiss_ms = [], [], [], []
         for frame in run:
             scan = frame.data
             ring = scan.ring.astype(np.int32)
@@ -222,21 +231,28 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6)) -> None:
             est.append(odom.register_points(scan.points, frame.stamp, ring=ring).pose)
             ms.append((time.perf_counter() - t0) * 1e3)
             if kiss_odom is not None:
-                pts = odom.downsampled_points(scan.points, ring=ring) if level > 1 else scan.points.astype(float)
+                pts = odom.downsampled_points(scan.points, ring=ring) if step > 1 else scan.points.astype(float)
+                t0 = time.perf_counter()
                 kiss_odom.register_frame(pts, np.zeros(len(pts)))
+                kiss_ms.append((time.perf_counter() - t0) * 1e3)
                 kiss_est.append(kiss_odom.last_pose.copy())
         scores = kitti_errors(np.array(est), gt)
         rpe_t = rpe(np.array(est), gt)[0]
         lo_text = (f"{scores[0]:20.3f} {scores[1]:14.5f}" if scores else f"{'too short':>20} {'':>14}") + \
-            f" {rpe_t:10.4f} {np.mean(ms[1:]):6.0f}"
-        k_text = f"{'n/a':>19} {'':>14} {'':>10}"
+            f" {rpe_t:10.4f} {np.mean(ms[1:]):6.1f}"
+        k_text = f"{'n/a':>19} {'':>14} {'':>10} {'':>6}"
         if kiss_odom is not None:
             kscores = kitti_errors(np.array(kiss_est), gt)
             k_rpe = rpe(np.array(kiss_est), gt)[0]
             k_text = (f"{kscores[0]:19.3f} {kscores[1]:14.5f}" if kscores else f"{'too short':>19} {'':>14}") + \
-                f" {k_rpe:10.4f}"
-        verdict = "?" if scores is None else ("MET" if scores[0] <= goal_pct else "MISSED")
-        print(f"{KITTI_LEVELS[level]:5} | {lo_text} | {k_text} | t_err <= {goal_pct}%: {verdict}", flush=True)
+                f" {k_rpe:10.4f} {np.mean(kiss_ms[1:]):6.1f}"
+        if level is None:
+            name, goal = f"1/{step * step}" if step > 1 else "full", "-"
+        else:
+            goal_pct = 1.0 if level == 1 else 3.0
+            verdict = "?" if scores is None else ("MET" if scores[0] <= goal_pct else "MISSED")
+            name, goal = KITTI_LEVELS[level], f"t_err <= {goal_pct}%: {verdict}"
+        print(f"{name:5} | {lo_text} | {k_text} | {goal}", flush=True)
 
 
 def main(argv=None) -> int:
@@ -250,6 +266,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-kiss", action="store_true", help="line_odom only")
     parser.add_argument("--sim", action="store_true", help="also the simulated street drive")
     parser.add_argument("--sim-frames", type=int, default=1000, help="simulated scans (10 m/s, 10 Hz: 1000 = 1 km)")
+    parser.add_argument("--sim-sensor", choices=tuple(SIM_PRESETS), default="hdl64",
+                        help="simulated LiDAR (vlp16, os128: their own presets at the presets' resolution)")
     parser.add_argument("--sim-levels", nargs="+", type=int, default=[1, 6], help="downsampling steps of the sim run")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="engine setting overrides (dotted names), e.g. ransac.max_iterations=500")
@@ -285,7 +303,7 @@ def main(argv=None) -> int:
               "full or along the directions the lines do not observe, registration.partial_updates)")
         print_table(rows)
     if args.sim:
-        run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels))
+        run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor)
     return 0
 
 
