@@ -5,6 +5,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels 6
     .venv/bin/python bench/accuracy.py --sim            # + the simulated 1 km street drive (KITTI devkit metric)
     .venv/bin/python bench/accuracy.py --only sim --sim-sensor vlp16   # the same street with a 16-beam LiDAR
+    .venv/bin/python bench/accuracy.py --seeds 8        # + line_odom's spread over RANSAC seeds 0-7
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal of issue 4 is met. KISS-ICP (a benchmark-only dependency:
@@ -255,6 +256,30 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str
         print(f"{name:5} | {lo_text} | {k_text} | {goal}", flush=True)
 
 
+def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> None:
+    """line_odom again with RANSAC seeds 1..seeds-1 on each row's frames (KISS-ICP is deterministic: its numbers
+    from the seed-0 run); each goal judged per seed against the same KISS-ICP row."""
+    print(f"\nline_odom over RANSAC seeds 0..{seeds - 1} (mean of the per-seed means; the table above is seed 0, "
+          f"the presets' seed)")
+    print(f"{'data':5} {'seq':7} {'res':5} | {'seed 0 t / r':>17} | {'mean t / r':>17} | {'t min-max':>15} | "
+          f"{'r min-max':>13} | goal met for")
+    for row in rows:
+        per_seed = [row]
+        for seed in range(1, seeds):
+            over = {**overrides, "seed": seed}
+            again = (run_kitti(row.sequence, row.level, args.kitti_frames, False, over) if row.dataset == "kitti"
+                     else run_tum(row.level, args.tum_frames, False, over))
+            per_seed.append(dataclasses.replace(again, kiss=row.kiss, kiss_ms=row.kiss_ms))
+        t = np.array([r.lo[0] for r in per_seed])
+        r = np.array([r.lo[2] for r in per_seed])
+        met = [goal(x)[1] for x in per_seed]
+        levels = KITTI_LEVELS if row.dataset == "kitti" else TUM_LEVELS
+        met_text = "?" if None in met else f"{sum(met)} of {seeds} seeds"
+        print(f"{row.dataset:5} {row.sequence:7} {levels.get(row.level, f'1/{row.level**2}'):5} | "
+              f"{t[0]:8.4f} / {r[0]:6.3f} | {t.mean():8.4f} / {r.mean():6.3f} | {t.min():6.4f}-{t.max():6.4f} | "
+              f"{r.min():5.3f}-{r.max():5.3f} | {met_text} ({goal(row)[0]})", flush=True)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--only", choices=("kitti", "tum", "sim"), help="run one dataset (sim: the simulated drive)")
@@ -269,6 +294,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sim-sensor", choices=tuple(SIM_PRESETS), default="hdl64",
                         help="simulated LiDAR (vlp16, os128: their own presets at the presets' resolution)")
     parser.add_argument("--sim-levels", nargs="+", type=int, default=[1, 6], help="downsampling steps of the sim run")
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="also run line_odom with RANSAC seeds 1..N-1 and print the spread (nine frame pairs "
+                             "per KITTI row: one sample can move a mean)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="engine setting overrides (dotted names), e.g. ransac.max_iterations=500")
     args = parser.parse_args(argv)
@@ -302,6 +330,8 @@ def main(argv=None) -> int:
         print("\nsummary (ms: mean per frame, Python call included; deg: degenerate frames, the prediction held in "
               "full or along the directions the lines do not observe, registration.partial_updates)")
         print_table(rows)
+        if args.seeds > 1:
+            print_seed_spread(rows, args.seeds, args, overrides)
     if args.sim:
         run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor)
     return 0
