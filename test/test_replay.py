@@ -159,7 +159,7 @@ def _replay_process(args: list[str], env: dict) -> subprocess.CompletedProcess:
                 proc.kill()
                 out, _ = proc.communicate()
             hung.append(out[-20000:])
-            warnings.warn(f"replay --realtime still running after {REALTIME_BOUND_S:.0f} s; its stacks:\n{out[-20000:]}")
+            warnings.warn(f"replay --realtime still running after {REALTIME_BOUND_S:.0f} s; its stacks:\n{hung[-1]}")
     pytest.fail("replay --realtime hung twice:\n" + "\n----\n".join(hung))
 
 
