@@ -93,8 +93,7 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     kiss_run = Run([], [], []) if kiss else None
     kiss_odom = kiss_odometry(100.0) if kiss else None
     for i in range(len(data)):
-        scan = data.points(i)
-        xyz = np.ascontiguousarray(scan[:, :3])
+        xyz = data.xyz(i)
         t0 = time.perf_counter()
         result = odom.register_points(xyz, float(data.times[i]))
         lo.ms.append((time.perf_counter() - t0) * 1e3)
@@ -175,8 +174,12 @@ HEAD = (f"{'data':5} {'seq':7} {'res':5} {'n':>3} | {'line_odom mean/max t [m]':
         f"{'paper t/r':>14} | goal")
 
 
-def format_row(row: Row) -> str:
+def resolution_name(row: Row) -> str:
     levels = KITTI_LEVELS if row.dataset == "kitti" else TUM_LEVELS
+    return levels.get(row.level, f"1/{row.level**2}")
+
+
+def format_row(row: Row) -> str:
     lo_t, lo_tm, lo_r, lo_rm = row.lo
     kiss = (f"{row.kiss[0]:11.4f}/{row.kiss[1]:<11.4f} {row.kiss[2]:8.3f}/{row.kiss[3]:<8.3f} "
             f"{row.kiss_ms:6.1f}") if row.kiss else f"{'n/a':>23} {'':>17} {'':>6}"
@@ -184,7 +187,7 @@ def format_row(row: Row) -> str:
     paper_text = f"{paper[0]:.4f}/{paper[1]:.3f}" if paper else "-"
     text, met = goal(row)
     verdict = {True: "MET", False: "MISSED", None: "?"}[met]
-    return (f"{row.dataset:5} {row.sequence:7} {levels.get(row.level, f'1/{row.level**2}'):5} {row.frames:3d} | "
+    return (f"{row.dataset:5} {row.sequence:7} {resolution_name(row):5} {row.frames:3d} | "
             f"{lo_t:12.4f}/{lo_tm:<11.4f} {lo_r:8.3f}/{lo_rm:<8.3f} {row.lo_ms:6.1f} {row.degenerate:3d} | "
             f"{kiss} | {paper_text:>14} | {text}: {verdict}")
 
@@ -273,9 +276,8 @@ def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> Non
         t = np.array([r.lo[0] for r in per_seed])
         r = np.array([r.lo[2] for r in per_seed])
         met = [goal(x)[1] for x in per_seed]
-        levels = KITTI_LEVELS if row.dataset == "kitti" else TUM_LEVELS
         met_text = "?" if None in met else f"{sum(met)} of {seeds} seeds"
-        print(f"{row.dataset:5} {row.sequence:7} {levels.get(row.level, f'1/{row.level**2}'):5} | "
+        print(f"{row.dataset:5} {row.sequence:7} {resolution_name(row):5} | "
               f"{t[0]:8.4f} / {r[0]:6.3f} | {t.mean():8.4f} / {r.mean():6.3f} | {t.min():6.4f}-{t.max():6.4f} | "
               f"{r.min():5.3f}-{r.max():5.3f} | {met_text} ({goal(row)[0]})", flush=True)
 

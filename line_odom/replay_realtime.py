@@ -88,6 +88,31 @@ def die_with_parent() -> None:
         pass
 
 
+def spin_in_background(executor):
+    """Spins `executor` on a daemon thread (spin_once, 50 ms waits) until the returned stop() is called. stop() joins
+    the thread, so nothing waits on the executor's nodes when they are torn down: rclpy's executor.shutdown()
+    returns while executor.spin() may still be inside such a wait."""
+    spinning = threading.Event()
+    spinning.set()
+
+    def spin():
+        while spinning.is_set():
+            try:
+                executor.spin_once(timeout_sec=0.05)
+            except Exception:  # noqa: BLE001 - the context shut down under the wait
+                if spinning.is_set():
+                    raise
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+
+    def stop() -> None:
+        spinning.clear()
+        thread.join(timeout=5.0)
+
+    return stop
+
+
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is not None:
         return
@@ -161,21 +186,7 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
     sub = node.create_subscription(Odometry, NODE_OUTPUT_TOPIC, on_odom, QoSProfile(depth=1000))
     executor.add_node(node)
-    spinning = threading.Event()
-    spinning.set()
-
-    def spin():
-        # Own loop, stopped and joined before anything is torn down: rclpy's executor.shutdown() returns while
-        # executor.spin() may still be inside a wait on the node being destroyed.
-        while spinning.is_set():
-            try:
-                executor.spin_once(timeout_sec=0.05)
-            except Exception:  # noqa: BLE001 - the context shut down under the wait
-                if spinning.is_set():
-                    raise
-
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
+    stop_spinning = spin_in_background(executor)
     published: dict[int, float] = {}
     try:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
@@ -218,8 +229,7 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
                     break
             time.sleep(0.05)
     finally:
-        spinning.clear()
-        spinner.join(timeout=5.0)
+        stop_spinning()
         _stop(proc)
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()

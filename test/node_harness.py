@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from line_odom.replay_realtime import die_with_parent
+from line_odom.replay_realtime import die_with_parent, spin_in_background
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = str(ROOT / "config" / "fastdds_large_messages.xml")
@@ -118,17 +118,7 @@ class Harness:
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._collect(self.diagnostics), reliable)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._spin = threading.Thread(target=self._spin_loop, daemon=True)
-        self._running = True
-        self._spin.start()
-
-    def _spin_loop(self):
-        while self._running:
-            try:
-                self.executor.spin_once(timeout_sec=0.05)
-            except Exception:  # noqa: BLE001 - context shut down while spinning
-                if self._running:
-                    raise
+        self._stop_spinning = spin_in_background(self.executor)
 
     def _collect(self, target: list):
         def callback(msg):
@@ -194,8 +184,7 @@ class Harness:
         return None, {}
 
     def close(self) -> None:
-        self._running = False
-        self._spin.join(timeout=5)
+        self._stop_spinning()
         self.executor.shutdown()
         self.node.destroy_node()
         self.context.try_shutdown()
