@@ -333,6 +333,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     if (!have) best_stats.best_solver = -2;
     have = true;
     out.held_directions = partial.locked_directions;
+    out.held_sensitivity = partial.held_sensitivity;
     failure = "partly unobserved motion: " + std::to_string(partial.locked_directions) +
               " of 6 directions held by the motion model";
     break;
@@ -462,15 +463,27 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
           else held.col(held_count++) = es.eigenvectors().col(k);
         }
         const Mat6 information = es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+        const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
+        // The estimate's error is (I - G) e_lines + G e_prediction (G = held_sensitivity): the free directions
+        // are coupled to the held ones, so the prediction's error reaches them too. Fused, K = fused P_f^-1:
+        // error (I - K + K G) e_prediction + K (I - G) e_lines.
+        Mat6 prediction_covariance = prior;
+        if (!(have_velocity_ && pt > 0.0))
+          prediction_covariance.diagonal() << ts * ts, ts * ts, ts * ts, rs * rs, rs * rs, rs * rs;
+        const Mat6& G = outcome.held_sensitivity;
+        Mat6 gain = Mat6::Identity();
         if (have_velocity_ && pt > 0.0) {
           const Mat6 fused_covariance = (prior.inverse() + information).inverse();
           const Vec6 fused = fused_covariance * (information * xi);
           if (fused.allFinite() && fused_covariance.allFinite()) {
             result.delta = apply_motion_difference(fused, prediction);
-            result.covariance = fused_covariance;
+            gain = fused_covariance * information;
           }
         }
-        const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
+        const Mat6 from_prediction = Mat6::Identity() - gain + gain * G;
+        const Mat6 propagated = from_prediction * prediction_covariance * from_prediction.transpose() +
+                                gain * result.covariance * gain.transpose();
+        if (propagated.allFinite()) result.covariance = propagated;
         for (int k = 0; k < held_count; ++k) {
           const Vec6 u = held.col(k);
           const double floor = ts * ts * u.head<3>().squaredNorm() + rs * rs * u.tail<3>().squaredNorm();

@@ -117,6 +117,7 @@ struct PassOutcome {
   bool have = false;
   std::string failure;
   int held_directions = 0;  // of a partial estimate: directions of xi held at the prediction
+  Mat6 held_sensitivity = Mat6::Zero();  // ... and how it moves with the prediction (RefineResult)
 };
 
 class Odometry {

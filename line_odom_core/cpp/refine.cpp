@@ -287,6 +287,16 @@ struct LockedSubspace {
     const Mat6 cov_s = (Q * Hs * Q + locked_projector).inverse() - locked_projector;
     return scale.asDiagonal() * cov_s * scale.asDiagonal();
   }
+  // d xi / d xi_prior of the constrained minimum: S (I - (Q Hs Q)^+ Hs) (I - Q) S^-1 (the locked components
+  // are the prior's, the free ones move by their least-squares coupling to them).
+  Mat6 held_sensitivity(const Mat6& H) const {
+    const Mat6 Q = free_projector();
+    const Mat6 locked_projector = Mat6::Identity() - Q;
+    const Mat6 Hs = scaled(H);
+    const Mat6 free_inverse = (Q * Hs * Q + locked_projector).inverse() - locked_projector;
+    return scale.asDiagonal() * (Mat6::Identity() - free_inverse * Hs) * locked_projector *
+           scale.cwiseInverse().asDiagonal();
+  }
 };
 
 // sigma^2 H^-1, the eigenvalues of H floored at 1e-12 of the largest.
@@ -368,6 +378,7 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
     res.locked_directions = locked->count;
     for (int k = 0; k < locked->count; ++k)
       res.locked_basis.col(k) = (locked->scale.asDiagonal() * locked->locked.col(k)).normalized();
+    res.held_sensitivity = locked->held_sensitivity(ne.H);
   } else {
     res.condition = scaled_condition(ne.H);
   }

@@ -39,6 +39,9 @@ struct RefineResult {
   int iterations = 0;
   int locked_directions = 0;  // refine_motion_partial: directions held at the prior (covariance zero along them)
   Mat6 locked_basis = Mat6::Zero();  // ... as unit columns 0..locked_directions-1 in xi coordinates
+  // ... and how the result moves when the prior does: d xi_result = held_sensitivity * d xi_prior (the held
+  // components follow the prior, the free ones their least-squares coupling to them); zero without locking.
+  Mat6 held_sensitivity = Mat6::Zero();
 };
 
 // Motion of a left perturbation: exp(xi) as a rigid transform, xi = (v, w).
@@ -74,7 +77,8 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
 // degeneracy of optimization-based state estimation problems", ICRA 2016): the axes in `locked_axes` (bit k: xi[k])
 // and, with lock_weak, the eigen-directions of the scaled J^T W J at T_from under options.degeneracy_threshold of
 // its largest stay at `prior`; the other directions start from T_from and are refined. The covariance is zero
-// along the locked directions (the refinement says nothing there: the caller supplies what the prior knows).
+// along the locked directions (the refinement says nothing there: the caller supplies what the prior knows);
+// the prior's error reaches the free directions through held_sensitivity.
 // Returns false when nothing (or everything) would be locked.
 bool refine_motion_partial(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T_from,
                            const RigidTransform& prior, int locked_axes, bool lock_weak, const RefineOptions& options,
