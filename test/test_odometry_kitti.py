@@ -38,8 +38,11 @@ def test_sparse_1_36_frame_to_frame_error(seq):
     t, r = relative_pose_errors(np.array([res.pose for res in results]), data.poses)
     bound_t, bound_r = BOUNDS_1_36[seq]
     assert t.mean() < bound_t and r.mean() < bound_r, (t, r)
-    # On the highway (04) the refinement is often ill-conditioned along the road: the prediction is then held.
-    assert sum(res.stats["degenerate"] for res in results) <= (7 if seq == "04" else 1)
+    # On the highway (04) the lines hardly observe the motion along the road: that direction is held at the
+    # prediction (measured 8 of 9 frames, one direction each), the rest registered. No frame is held in full.
+    held = [res.stats["held_directions"] for res in results[1:]]
+    assert sum(h == 6 for h in held) <= 1 and all(h <= 2 for h in held), held
+    assert sum(h > 0 for h in held) <= (9 if seq == "04" else 1), held
     assert all(res.stats["candidates"] > 100 for res in results[1:])
 
 
