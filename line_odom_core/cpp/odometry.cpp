@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -237,9 +238,17 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     copt.plane_max_distance *= reg.pass_distance_scale;
     copt.max_pairs_per_line = config_.candidates.max_pairs_per_line;
     if (!ok && !refined_ok) {
-      failure = ms.inliers < reg.min_inliers && ms.inliers > 0
-                    ? "too few inliers (" + std::to_string(ms.inliers) + " < " + std::to_string(reg.min_inliers) + ")"
-                    : "no model with enough support (" + std::to_string(cstats.line_pairs) + " candidates)";
+      if (refine_converged && refined.degenerate && refined.line_inliers >= reg.min_inliers) {
+        char condition[64];
+        std::snprintf(condition, sizeof condition, "%.1e < ransac.degeneracy_threshold %.1e", refined.condition,
+                      ropt.degeneracy_threshold);
+        failure = "ill-conditioned constraints (" + std::to_string(refined.line_inliers) + " inliers, condition " +
+                  condition + ")";
+      } else {
+        failure = ms.inliers < reg.min_inliers && ms.inliers > 0
+                      ? "too few inliers (" + std::to_string(ms.inliers) + " < " + std::to_string(reg.min_inliers) + ")"
+                      : "no model with enough support (" + std::to_string(cstats.line_pairs) + " candidates)";
+      }
       continue;
     }
     // Ties go to the guess (the constant-velocity prediction carries the weakly observed directions).
