@@ -279,22 +279,22 @@ struct LockedSubspace {
     const Vec6 dx_s = M.ldlt().solve(-(Q * (scale.asDiagonal() * g)));
     return scale.asDiagonal() * dx_s;
   }
-  // H^-1 on the free directions, zero along the locked ones (the pseudo-inverse of Q Hs Q), in xi coordinates.
-  Mat6 free_covariance(const Mat6& H) const {
+  // (Q Hs Q)^+: Hs^-1 on the free directions, zero along the locked ones, in scaled coordinates.
+  Mat6 free_inverse(const Mat6& Hs) const {
     const Mat6 Q = free_projector();
     const Mat6 locked_projector = Mat6::Identity() - Q;
-    const Mat6 Hs = scaled(H);
-    const Mat6 cov_s = (Q * Hs * Q + locked_projector).inverse() - locked_projector;
-    return scale.asDiagonal() * cov_s * scale.asDiagonal();
+    return (Q * Hs * Q + locked_projector).inverse() - locked_projector;
+  }
+  // ... in xi coordinates.
+  Mat6 free_covariance(const Mat6& H) const {
+    return scale.asDiagonal() * free_inverse(scaled(H)) * scale.asDiagonal();
   }
   // d xi / d xi_prior of the constrained minimum: S (I - (Q Hs Q)^+ Hs) (I - Q) S^-1 (the locked components
   // are the prior's, the free ones move by their least-squares coupling to them).
   Mat6 held_sensitivity(const Mat6& H) const {
-    const Mat6 Q = free_projector();
-    const Mat6 locked_projector = Mat6::Identity() - Q;
     const Mat6 Hs = scaled(H);
-    const Mat6 free_inverse = (Q * Hs * Q + locked_projector).inverse() - locked_projector;
-    return scale.asDiagonal() * (Mat6::Identity() - free_inverse * Hs) * locked_projector *
+    const Mat6 locked_projector = Mat6::Identity() - free_projector();
+    return scale.asDiagonal() * (Mat6::Identity() - free_inverse(Hs) * Hs) * locked_projector *
            scale.cwiseInverse().asDiagonal();
   }
 };
