@@ -33,6 +33,14 @@ class Stopwatch {
   std::chrono::steady_clock::time_point start_;
 };
 
+// Independent sigmas per axis: translation (m) on x y z, rotation (rad) on rx ry rz.
+Mat6 motion_covariance(double translation_sigma, double rotation_sigma) {
+  Mat6 covariance = Mat6::Zero();
+  const double t2 = translation_sigma * translation_sigma, r2 = rotation_sigma * rotation_sigma;
+  covariance.diagonal() << t2, t2, t2, r2, r2, r2;
+  return covariance;
+}
+
 double rotation_angle(const Mat3& R) {
   const double c = std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0);
   return std::acos(c);
@@ -448,14 +456,15 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     const MotionStats& best_stats = outcome.stats;
     const bool have = outcome.have;
     std::string failure = outcome.failure;
+    const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
     if (have && !best_stats.degenerate && best_stats.covariance.allFinite()) {
       result.delta = best;
       const int constraints = std::max(1, best_stats.inliers + best_stats.plane_inliers);
       result.covariance = best_stats.covariance * (reg.covariance_per_inlier ? reg.covariance_scale * constraints
                                                                              : reg.covariance_scale);
       const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
-      Mat6 prior = Mat6::Zero();
-      prior.diagonal() << pt * pt, pt * pt, pt * pt, pr * pr, pr * pr, pr * pr;
+      const Mat6 prior = motion_covariance(pt, pr);
+      const bool fuse_prior = have_velocity_ && pt > 0.0;
       const Vec6 xi = motion_difference(best, prediction);
       if (outcome.held_directions > 0) {
         // A partial estimate says nothing along the held directions (covariance zero there, refine.hpp): fused in
@@ -472,16 +481,13 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
           else held.col(held_count++) = es.eigenvectors().col(k);
         }
         const Mat6 information = es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
-        const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
         // The estimate's error is (I - G) e_lines + G e_prediction (G = held_sensitivity): the free directions
         // are coupled to the held ones, so the prediction's error reaches them too. Fused, K = fused P_f^-1:
         // error (I - K + K G) e_prediction + K (I - G) e_lines.
-        Mat6 prediction_covariance = prior;
-        if (!(have_velocity_ && pt > 0.0))
-          prediction_covariance.diagonal() << ts * ts, ts * ts, ts * ts, rs * rs, rs * rs, rs * rs;
+        const Mat6 prediction_covariance = fuse_prior ? prior : motion_covariance(ts, rs);
         const Mat6& G = outcome.held_sensitivity;
         Mat6 gain = Mat6::Identity();
-        if (have_velocity_ && pt > 0.0) {
+        if (fuse_prior) {
           const Mat6 fused_covariance = (prior.inverse() + information).inverse();
           const Vec6 fused = fused_covariance * (information * xi);
           if (fused.allFinite() && fused_covariance.allFinite()) {
@@ -503,7 +509,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
         st.degenerate = true;
         st.held_directions = outcome.held_directions;
         st.failure = failure;
-      } else if (have_velocity_ && pt > 0.0) {
+      } else if (fuse_prior) {
         // MAP fusion with the constant-velocity prior on the left perturbation exp(xi) * prediction: directions
         // the lines observe poorly (large covariance) stay with the prediction. Covariance (I - K) P of the Kalman
         // update with H = I, K = P (P + C)^-1: (P^-1 + C^-1)^-1, below both the prior's and the estimate's.
@@ -520,9 +526,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     } else {
       if (have && failure.empty()) failure = "degenerate constraints (ill-conditioned refinement)";
       result.delta = prediction;
-      const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
-      result.covariance = Mat6::Zero();
-      result.covariance.diagonal() << ts * ts, ts * ts, ts * ts, rs * rs, rs * rs, rs * rs;
+      result.covariance = motion_covariance(ts, rs);
       if (have) result.covariance = result.covariance.cwiseMax(best_stats.covariance);
       st.solver = "prediction";
       st.degenerate = true;
