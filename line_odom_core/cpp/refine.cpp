@@ -285,16 +285,13 @@ struct LockedSubspace {
     const Mat6 locked_projector = Mat6::Identity() - Q;
     return (Q * Hs * Q + locked_projector).inverse() - locked_projector;
   }
-  // ... in xi coordinates.
-  Mat6 free_covariance(const Mat6& H) const {
-    return scale.asDiagonal() * free_inverse(scaled(H)) * scale.asDiagonal();
-  }
+  // ... in xi coordinates, from free_inverse(Hs).
+  Mat6 free_covariance(const Mat6& free_inv) const { return scale.asDiagonal() * free_inv * scale.asDiagonal(); }
   // d xi / d xi_prior of the constrained minimum: S (I - (Q Hs Q)^+ Hs) (I - Q) S^-1 (the locked components
   // are the prior's, the free ones move by their least-squares coupling to them).
-  Mat6 held_sensitivity(const Mat6& H) const {
-    const Mat6 Hs = scaled(H);
+  Mat6 held_sensitivity(const Mat6& Hs, const Mat6& free_inv) const {
     const Mat6 locked_projector = Mat6::Identity() - free_projector();
-    return scale.asDiagonal() * (Mat6::Identity() - free_inverse(Hs) * Hs) * locked_projector *
+    return scale.asDiagonal() * (Mat6::Identity() - free_inv * Hs) * locked_projector *
            scale.cwiseInverse().asDiagonal();
   }
 };
@@ -368,6 +365,7 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
   res.line_inlier_weight = ne.line_inlier_weight;
   res.plane_inliers = ne.plane_inliers;
   res.residual_rms = ne.line_inliers > 0 ? std::sqrt(ne.line_sq / ne.line_inliers) : 0.0;
+  Mat6 free_inv = Mat6::Zero();  // locked: (Q Hs Q)^+ at the result
   if (locked) {
     // Condition of the free directions alone: the locked ones are the `count` zero eigenvalues of Q Hs Q.
     const Mat6 Hs = locked->scaled(ne.H);
@@ -378,7 +376,8 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
     res.locked_directions = locked->count;
     for (int k = 0; k < locked->count; ++k)
       res.locked_basis.col(k) = (locked->scale.asDiagonal() * locked->locked.col(k)).normalized();
-    res.held_sensitivity = locked->held_sensitivity(ne.H);
+    free_inv = locked->free_inverse(Hs);
+    res.held_sensitivity = locked->held_sensitivity(Hs, free_inv);
   } else {
     res.condition = scaled_condition(ne.H);
   }
@@ -388,7 +387,7 @@ bool gauss_newton(const Correspondences& data, const LinePairTable& pairs, const
     const int dof = std::max(1, ne.residuals - 6 + (locked ? locked->count : 0));
     const double sigma_floor = 1e-3 * options.line_threshold;
     const double sigma2 = std::max(ne.weighted_sq / dof, sigma_floor * sigma_floor);
-    Mat6 cov = locked ? Mat6(sigma2 * locked->free_covariance(ne.H)) : covariance_from(ne.H, sigma2);
+    Mat6 cov = locked ? Mat6(sigma2 * locked->free_covariance(free_inv)) : covariance_from(ne.H, sigma2);
     cov = 0.5 * (cov + cov.transpose());
     if (cov.allFinite()) res.covariance = cov;
   }
