@@ -34,6 +34,13 @@ def run(seq, downsample, frames=None, **overrides):
     return data, results
 
 
+def frame_nees(data, results):
+    """Per frame pair e^T C^-1 e of the registered motion against the ground truth's."""
+    deltas = np.array([r.delta for r in results[1:]])
+    truth = np.linalg.inv(data.poses[:-1]) @ data.poses[1:]
+    return nees(motion_errors(deltas, truth), np.array([r.covariance for r in results[1:]]))
+
+
 @pytest.mark.parametrize("seq", ["00", "04", "07"])
 def test_sparse_1_36_frame_to_frame_error(seq):
     data, results = run(seq, 6)
@@ -158,9 +165,7 @@ def test_fusion_with_the_motion_prior_gives_the_information_form_covariance():
 @pytest.mark.parametrize("seq", ["04", "07"])
 def test_reported_covariance_is_consistent_with_the_errors(seq):
     data, results = run(seq, 1)
-    deltas = np.array([r.delta for r in results[1:]])
-    truth = np.linalg.inv(data.poses[:-1]) @ data.poses[1:]
-    mean = nees(motion_errors(deltas, truth), np.array([r.covariance for r in results[1:]])).mean() / 6
+    mean = frame_nees(data, results).mean() / 6
     assert 0.02 < mean < 5.0, mean
 
 
@@ -185,9 +190,7 @@ def test_partly_held_covariance_carries_the_predictions_error():
     11 mm off: NEES 185. With the coupling every partly held frame measures NEES 2.2 or less (over 8 of 9 frames);
     bound: the chi-square 99.9 % quantile of 6 degrees of freedom."""
     data, results = run("04", 6, **{"ransac.degeneracy_threshold": 0.01})
-    truth = np.linalg.inv(data.poses[:-1]) @ data.poses[1:]
-    deltas = np.array([r.delta for r in results[1:]])
-    per_frame = nees(motion_errors(deltas, truth), np.array([r.covariance for r in results[1:]]))
+    per_frame = frame_nees(data, results)
     held = np.array([r.stats["held_directions"] for r in results[1:]])
     assert ((held > 0) & (held < 6)).sum() >= 5, held
     assert np.all(per_frame[(held > 0) & (held < 6)] < 22.46), (held, per_frame)
