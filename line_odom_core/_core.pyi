@@ -1,5 +1,5 @@
 """Type stubs of the C++ engine module line_odom_core._core (pybind11)."""
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -109,6 +109,8 @@ class FrameResult:
       held_directions: int    0 registered in full; 1-5 a partial estimate (registration.partial_updates): that many
                               directions of the motion the lines do not observe come from the prediction, the rest
                               from the lines; 6 the prediction held in full
+      persistence: tuple      6 floats (x y z rx ry rz): the share of the last motion this frame's prediction
+                              carried (registration.persistence_window; 1 = constant velocity)
       failure: str            why, when degenerate ("" otherwise)
       ms: dict[str, float]    per-stage milliseconds: organize, downsample, features, candidates, ransac, total
     """
@@ -139,4 +141,6 @@ class Odometry:
     def frames(self) -> int: ...
     def settings(self) -> dict[str, bool | int | float | str]: ...
 
+def _motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence[bool] | None = None
+                        ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each velocity (test hook)
 def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...

@@ -144,6 +144,12 @@ _ENTRIES: list[ConfigEntry] = [
                 "prediction is rejected", 0.01, 180.0),
     ConfigEntry("registration.constant_velocity", bool, True, "predict each motion from the previous one "
                 "(scaled by the stamp interval); false = identity", None, None),
+    ConfigEntry("registration.persistence_window", int, 0, "frames over which the prediction measures, per axis, "
+                "how much of one frame's estimated motion carries over to the next (the least-squares a in "
+                "xi(k+1) ~ a xi(k), clamped to [0, 1]) and carries only that share: ~1 for a smoothly moving, "
+                "precisely measured sensor; less where the estimates are noisy against the motion, so a wrong frame "
+                "is not extrapolated into the next ones. Constant velocity until 10 pairs. 0 = the last motion as "
+                "it was", 0, 100000),
     ConfigEntry("registration.max_axis_support", float, 0.97, "the estimate is degenerate (the prediction is "
                 "held) when pushing it 20 inlier thresholds along one axis keeps this share of its inlier weight: "
                 "that motion is unobservable, e.g. along an endless corridor (1 = off)", 0.0, 1.0),

@@ -138,7 +138,8 @@ def test_engine_rejects_what_the_schema_rejects():
         line_odom_core._core.Odometry({"no_such.key": 1})
     with pytest.raises(ValueError, match="ransac.solver"):
         line_odom_core._core.Odometry({"ransac.solver": "9L"})
-    for name in ("registration.max_lines", "registration.first_motion_pairs_per_line"):
+    for name in ("registration.max_lines", "registration.first_motion_pairs_per_line",
+                 "registration.persistence_window"):
         with pytest.raises(ValueError, match=name):
             line_odom_core._core.Odometry({name: -1})
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 6}))

@@ -864,6 +864,8 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["registered"] = s.registered;
   d["degenerate"] = s.degenerate;
   d["held_directions"] = s.held_directions;
+  d["persistence"] = py::make_tuple(s.persistence(0), s.persistence(1), s.persistence(2), s.persistence(3),
+                                    s.persistence(4), s.persistence(5));
   d["failure"] = s.failure;
   d["ms"] = ms;
   return d;
@@ -1101,6 +1103,24 @@ PYBIND11_MODULE(_core, m) {
             return q.coeffs();  // Eigen stores x, y, z, w
           },
           py::arg("R"), "Unit quaternion [x, y, z, w] (w >= 0) of a 3x3 rotation matrix.");
+    m.def("_motion_persistence",
+          [](const Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor>& motions, int window,
+             const std::optional<std::vector<bool>>& registered) {
+            if (window < 0) throw py::value_error("window: expected >= 0 (frames)");
+            if (registered && registered->size() != static_cast<std::size_t>(motions.rows()))
+              throw py::value_error("registered: expected one flag per row of motions");
+            line_odom::MotionPersistence persistence(window);
+            Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor> factors(motions.rows(), 6);
+            for (Eigen::Index i = 0; i < motions.rows(); ++i) {
+              if (!registered || (*registered)[i]) persistence.add(motions.row(i).transpose());
+              else persistence.interrupt();
+              factors.row(i) = persistence.factors().transpose();
+            }
+            return factors;
+          },
+          py::arg("motions"), py::arg("window"), py::arg("registered") = py::none(),
+          "Test hook: MotionPersistence (motion_persistence.hpp) fed the velocities (N, 6) (x y z rx ry rz) of frames "
+          "in order (registered[i] False: a frame without a registration); the per-axis factors after each (N, 6).");
     m.def("odometry_config_defaults", []() { return ob::settings_dict(line_odom::OdometryConfig{}); },
           "Every dotted engine setting the C++ side knows, with its default.");
   }

@@ -78,6 +78,9 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   if (config_.downsample < 1) throw std::invalid_argument("downsample: expected >= 1");
   if (config_.registration.passes < 1) throw std::invalid_argument("registration.passes: expected >= 1");
   if (config_.registration.max_lines < 0) throw std::invalid_argument("registration.max_lines: expected >= 0");
+  if (config_.registration.persistence_window < 0)
+    throw std::invalid_argument("registration.persistence_window: expected >= 0 (frames; 0: off)");
+  persistence_ = MotionPersistence(config_.registration.persistence_window);
   if (config_.registration.first_motion_pairs_per_line < 0)
     throw std::invalid_argument("registration.first_motion_pairs_per_line: expected >= 0");
   if (config_.threads < 0 || config_.threads > 256)
@@ -90,6 +93,7 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
 void Odometry::reset(const RigidTransform& pose) {
   pose_ = pose;
   last_delta_ = RigidTransform::identity();
+  persistence_.clear();
   last_dt_ = 0.0;
   prev_stamp_ = 0.0;
   have_velocity_ = false;
@@ -104,7 +108,10 @@ RigidTransform Odometry::predict(double stamp) const {
   const double dt = stamp - prev_stamp_;
   double alpha = 1.0;
   if (std::isfinite(dt) && dt > 0.0 && last_dt_ > 0.0) alpha = std::clamp(dt / last_dt_, 0.0, 5.0);
-  return scale_motion(last_delta_, alpha);
+  const Vec6 persistence = persistence_.factors();
+  if (persistence == Vec6::Ones()) return scale_motion(last_delta_, alpha);
+  const Vec6 carried = persistence.cwiseProduct(motion_difference(last_delta_, RigidTransform::identity()));
+  return scale_motion(apply_motion_difference(carried, RigidTransform::identity()), alpha);
 }
 
 SensorModel make_sensor_model(const SensorOptions& options) {
@@ -383,6 +390,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     // After a pause the last motion says nothing about this one: no extrapolation, find the motion afresh.
     have_velocity_ = false;
     last_delta_ = RigidTransform::identity();
+    persistence_.interrupt();
   }
 
   Stopwatch stage;
@@ -429,6 +437,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   } else {
     const double dt = stamp - prev_stamp_;
     const RigidTransform prediction = predict(stamp);
+    if (have_velocity_ && config_.registration.constant_velocity) st.persistence = persistence_.factors();
     const RegistrationOptions& reg = config_.registration;
     RigidTransform start = prediction;
     bool coarse_used = false;
@@ -544,6 +553,10 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     pose_.R = q.normalized().toRotationMatrix();
     result.pose = pose_;
     last_delta_ = result.delta;
+    if (st.registered && std::isfinite(dt) && dt > 0.0)
+      persistence_.add(motion_difference(result.delta, RigidTransform::identity()) / dt);  // a velocity: predict()
+    else                                                                                     // scales by the dt ratio
+      persistence_.interrupt();
     last_dt_ = (std::isfinite(dt) && dt > 0.0) ? dt : last_dt_;
     have_velocity_ = true;
   }
@@ -599,6 +612,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);
   visit("registration.constant_velocity", c.registration.constant_velocity);
+  visit("registration.persistence_window", c.registration.persistence_window);
   visit("registration.max_axis_support", c.registration.max_axis_support);
   visit("registration.max_axis_pair_support", c.registration.max_axis_pair_support);
   visit("registration.min_inlier_ratio", c.registration.min_inlier_ratio);

@@ -15,6 +15,7 @@
 #include "candidates.hpp"
 #include "feature_extraction.hpp"
 #include "motion_estimation.hpp"
+#include "motion_persistence.hpp"
 #include "range_image.hpp"
 #include "scan_features.hpp"
 #include "types.hpp"
@@ -29,6 +30,8 @@ struct RegistrationOptions {
   double max_translation = 5.0;         // reject estimates this far (m) from the prediction
   double max_rotation_deg = 30.0;       // ... or rotated this much from it
   bool constant_velocity = true;        // false: predict identity
+  int persistence_window = 0;           // frames: the prediction scales the last motion per axis by its measured
+                                        // persistence (motion_persistence.hpp); 0: the last motion as it was
   double max_axis_support = 0.97;       // degenerate when a push along one axis keeps this share of the inliers
   double max_axis_pair_support = 0.995;  // ... or this share of the inlier pairs, each counted once
   double min_inlier_ratio = 0.3;        // degenerate when fewer of the last pass's candidate pairs are inliers
@@ -99,6 +102,7 @@ struct FrameStats {
   bool degenerate = false;      // registration failed or was ill-conditioned: the prediction was held (in full, or
                                 // along held_directions)
   int held_directions = 0;      // 1..5: a partial estimate, these directions from the prediction; 6: held in full
+  Vec6 persistence = Vec6::Ones();  // share of the last motion predicted for this frame, per axis (x y z rx ry rz)
   std::string failure;          // why, when degenerate
   StageMilliseconds ms;
 };
@@ -160,6 +164,7 @@ class Odometry {
   SensorModel sensor_;
   RigidTransform pose_;
   RigidTransform last_delta_;
+  MotionPersistence persistence_;
   double last_dt_ = 0.0;
   double prev_stamp_ = 0.0;
   bool have_velocity_ = false;

@@ -1,0 +1,76 @@
+"""The prediction's per-axis persistence (motion_persistence.hpp, registration.persistence_window): the
+least-squares a in v(k+1) ~ a v(k) over the registered frames' velocities, clamped to [0, 1], through the engine's
+test hook, then end to end on TUM fr1/xyz (test_odometry_tum.py)."""
+import numpy as np
+import pytest
+
+from line_odom_core import _core
+
+MIN_PAIRS = 10  # MotionPersistence::kMinPairs: constant velocity until then
+
+
+def ar1(alpha, frames, seed=0, scale=1.0):
+    """Motions of an AR(1) process v(k+1) = alpha v(k) + w, w ~ N(0, scale^2), on every axis."""
+    rng = np.random.default_rng(seed)
+    v = np.zeros((frames, 6))
+    for k in range(1, frames):
+        v[k] = alpha * v[k - 1] + rng.normal(scale=scale, size=6)
+    return v
+
+
+@pytest.mark.parametrize("alpha", [0.3, 0.6, 0.9])
+def test_recovers_the_persistence_of_an_ar1_motion(alpha):
+    factors = _core._motion_persistence(ar1(alpha, 2000), 500)
+    # 500-frame window: the least-squares estimate's standard error is ~sqrt((1 - a^2) / 500) < 0.045
+    np.testing.assert_allclose(factors[-1], alpha, atol=0.12)
+
+
+def test_steady_motion_is_predicted_in_full_and_an_alternating_one_not_at_all():
+    steady = np.tile([1.2, 0.01, 0.0, 0.0, 0.0, 0.02], (60, 1))
+    steady += np.random.default_rng(1).normal(scale=1e-4, size=steady.shape)
+    factors = _core._motion_persistence(steady, 90)
+    assert factors[-1][[0, 1, 5]].min() > 0.99, factors[-1]
+    alternating = np.outer((-1.0) ** np.arange(60), np.ones(6))
+    np.testing.assert_array_equal(_core._motion_persistence(alternating, 90)[-1], np.zeros(6))
+
+
+def test_noisy_estimates_of_a_smooth_motion_are_shrunk_by_their_noise():
+    """Estimates z = v + n of a slowly varying v (persistence ~1): the least-squares factor is the Wiener gain
+    E[v v] / (E[v v] + E[n n]) per axis; a precise axis keeps ~1, an axis as noisy as its motion about half."""
+    k = np.arange(3000)
+    v = np.outer(np.sin(2 * np.pi * k / 300.0), np.ones(6))  # E[v^2] = 0.5
+    noise = np.array([0.0, 0.05, 0.3, 0.7, 1.0, 2.0])
+    z = v + np.random.default_rng(2).normal(size=v.shape) * noise
+    factors = _core._motion_persistence(z, 3000)[-1]
+    wiener = 0.5 / (0.5 + noise ** 2)
+    np.testing.assert_allclose(factors, wiener, atol=0.05)
+    assert np.all(np.diff(factors) < 0), factors
+
+
+def test_constant_velocity_until_enough_consecutive_pairs():
+    motions = ar1(-0.5, 30, seed=3)  # anti-persistent: every factor well under 1 once estimated
+    factors = _core._motion_persistence(motions, 90)
+    np.testing.assert_array_equal(factors[:MIN_PAIRS], np.ones((MIN_PAIRS, 6)))  # row i: after i pairs
+    assert np.all(factors[MIN_PAIRS] < 1.0), factors[MIN_PAIRS]
+    # a frame without a registration breaks the chain: the pairs around it are not counted
+    registered = np.ones(30, dtype=bool)
+    registered[5] = False
+    factors = _core._motion_persistence(motions, 90, registered.tolist())
+    np.testing.assert_array_equal(factors[:MIN_PAIRS + 2], np.ones((MIN_PAIRS + 2, 6)))
+    assert np.all(factors[MIN_PAIRS + 2] < 1.0)
+    # window 0: off
+    np.testing.assert_array_equal(_core._motion_persistence(motions, 0), np.ones((30, 6)))
+
+
+def test_non_finite_motions_and_bad_arguments():
+    motions = ar1(0.5, 40, seed=4)
+    motions[20] = np.nan
+    motions[21, 3] = np.inf
+    factors = _core._motion_persistence(motions, 90)
+    assert np.all(np.isfinite(factors)) and np.all((factors >= 0.0) & (factors <= 1.0))
+    still = np.zeros((20, 6))  # an axis that never moves keeps factor 1 (nothing to scale)
+    np.testing.assert_array_equal(_core._motion_persistence(still, 90)[-1], np.ones(6))
+    with pytest.raises(ValueError, match="window"):
+        _core._motion_persistence(motions, -1)
+    with pytest.raises(ValueError, match="registered"):
+        _core._motion_persistence(motions, 90, [True] * 3)
