@@ -74,3 +74,20 @@ def test_non_finite_motions_and_bad_arguments():
         _core._motion_persistence(motions, -1)
     with pytest.raises(ValueError, match="registered"):
         _core._motion_persistence(motions, 90, [True] * 3)
+
+
+def test_reset_forgets_the_persistence():
+    """Through Odometry (tum_kinect at 1/100, real fr1/xyz frames): factors leave 1 after 10 velocity pairs and a
+    reset starts over at constant velocity."""
+    import line_odom_core
+    from line_odom.datasets import tum_sequence
+
+    data = tum_sequence(40)
+    odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": 10}))
+    before = [odom.register_depth(data.depth(i), data.K, float(data.stamps[i])).stats["persistence"]
+              for i in range(20)]
+    assert before[11] == (1.0,) * 6 and before[12] != (1.0,) * 6, before[10:14]
+    odom.reset()
+    after = [odom.register_depth(data.depth(i), data.K, float(data.stamps[i])).stats["persistence"]
+             for i in range(20, 40)]
+    assert all(p == (1.0,) * 6 for p in after[:12]) and after[12] != (1.0,) * 6, after[10:14]
