@@ -457,6 +457,8 @@ class OdometryProcessor:
                 "registered_lines", "planes"):
             if key in stats:
                 values[key] = stats[key]
+        if "persistence" in stats:  # the share of the last motion the prediction carried, x y z rx ry rz
+            values["persistence"] = " ".join(f"{a:.2f}" for a in stats["persistence"])
         for stage, ms in (stats.get("ms") or {}).items():
             values[f"ms.{stage}"] = ms
         values["last_error"] = last_error or ""

@@ -46,6 +46,7 @@ class ScriptedEngine:
         delta = np.eye(4) if self.prev is None else np.linalg.inv(self.prev) @ pose
         self.prev = pose
         return _Result(pose, delta, self.cov, {"solver": "3L1P", "inliers": 321, "degenerate": False,
+                                               "persistence": (1.0, 1.0, 0.987, 0.5, 0.25, 0.0),
                                                "ms": {"total": 12.5}})
 
     def register_points(self, xyz, stamp, ring=None):
@@ -178,6 +179,7 @@ def test_malformed_frames_are_counted_and_next_good_frame_processed():
     assert "no 'x' field" in values["last_error"]
     assert diag.status[0].level == DiagnosticStatus.WARN and "malformed" in diag.status[0].message  # WARN
     assert values["solver"] == "3L1P" and values["inliers"] == "321" and values["ms.total"] == "12.500"
+    assert values["persistence"] == "1.00 1.00 0.99 0.50 0.25 0.00"  # x y z rx ry rz share of the last motion
     diag = proc.diagnostics()  # the next period has no new problem
     assert diag.status[0].level == DiagnosticStatus.OK
 
