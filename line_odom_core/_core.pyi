@@ -141,6 +141,7 @@ class Odometry:
     def frames(self) -> int: ...
     def settings(self) -> dict[str, bool | int | float | str]: ...
 
-def _motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence[bool] | None = None
-                        ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each velocity (test hook)
+def _motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence[bool] | None = None,
+                        dt: Sequence[float] | None = None
+                        ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each motion (test hook)
 def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...

@@ -62,6 +62,30 @@ def test_constant_velocity_until_enough_consecutive_pairs():
     np.testing.assert_array_equal(_core._motion_persistence(motions, 0), np.ones((30, 6)))
 
 
+def test_one_wild_frame_or_stamp_glitch_does_not_suppress_the_prediction():
+    """A single velocity 100x too large (a wrong registration) enters clipped at 3 rms; a frame whose stamp interval is
+    off by more than 5x (its motion / interval is wrong by that factor) breaks the chain instead of entering. Unclipped,
+    the spike alone would hold every factor near 0.1 for hundreds of frames."""
+    clean = ar1(0.9, 400, seed=5)
+    reference = _core._motion_persistence(clean, 90)
+    spiked = clean.copy()
+    spiked[200] *= 100.0
+    factors = _core._motion_persistence(spiked, 90)
+    np.testing.assert_allclose(factors[230], reference[230], atol=0.15)
+    dt = np.ones(400)
+    dt[250] = 1e-3  # the motion of a normal frame over a 1 ms "interval"
+    factors = _core._motion_persistence(clean, 90, dt=dt.tolist())
+    for k in (250, 251, 252):  # the glitch, the interval after it (5x off the glitch's), and the restart: no pairs
+        np.testing.assert_array_equal(factors[k], factors[249])
+    assert not np.array_equal(factors[253], factors[249])
+    np.testing.assert_allclose(factors[280], reference[280], atol=0.1)
+    assert factors[280].min() > 0.6, factors[280]
+    # velocities, not per-frame motions: steady motion at alternating 25 / 40 ms intervals persists in full
+    intervals = np.where(np.arange(100) % 2 == 0, 0.025, 0.040)
+    steady = np.outer(intervals, [0.5, 0.0, 0.0, 0.0, 0.0, 0.1])
+    assert _core._motion_persistence(steady, 90, dt=intervals.tolist())[-1][[0, 5]].min() > 0.999
+
+
 def test_non_finite_motions_and_bad_arguments():
     motions = ar1(0.5, 40, seed=4)
     motions[20] = np.nan
@@ -74,6 +98,8 @@ def test_non_finite_motions_and_bad_arguments():
         _core._motion_persistence(motions, -1)
     with pytest.raises(ValueError, match="registered"):
         _core._motion_persistence(motions, 90, [True] * 3)
+    with pytest.raises(ValueError, match="dt"):
+        _core._motion_persistence(motions, 90, dt=[0.1] * 3)
 
 
 def test_reset_forgets_the_persistence():

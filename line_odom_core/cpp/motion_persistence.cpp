@@ -1,14 +1,26 @@
 #include "motion_persistence.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 namespace line_odom {
 
-void MotionPersistence::add(const Vec6& z) {
-  if (window_ <= 0 || !z.allFinite()) {
+void MotionPersistence::add(const Vec6& motion, double dt) {
+  const bool interval_ok = std::isfinite(dt) && dt > 0.0 &&
+                           (previous_dt_ <= 0.0 || (dt <= kMaxIntervalRatio * previous_dt_ &&
+                                                    previous_dt_ <= kMaxIntervalRatio * dt));
+  const bool usable = window_ > 0 && interval_ok && motion.allFinite();
+  if (std::isfinite(dt) && dt > 0.0) previous_dt_ = dt;
+  if (!usable) {
     interrupt();
     return;
   }
+  Vec6 z = motion / dt;
+  if (pairs_ >= kMinPairs)
+    for (int k = 0; k < 6; ++k) {
+      const double limit = kClipSigmas * std::sqrt(lag0_(k));
+      z(k) = std::clamp(z(k), -limit, limit);
+    }
   if (have_previous_) {
     ++pairs_;
     const double w = 1.0 / std::min(pairs_, window_);
@@ -24,6 +36,7 @@ void MotionPersistence::interrupt() { have_previous_ = false; }
 void MotionPersistence::clear() {
   pairs_ = 0;
   have_previous_ = false;
+  previous_dt_ = 0.0;
   previous_ = lag0_ = lag1_ = Vec6::Zero();
 }
 

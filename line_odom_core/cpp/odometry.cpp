@@ -553,9 +553,9 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     pose_.R = q.normalized().toRotationMatrix();
     result.pose = pose_;
     last_delta_ = result.delta;
-    if (st.registered && std::isfinite(dt) && dt > 0.0)
-      persistence_.add(motion_difference(result.delta, RigidTransform::identity()) / dt);  // a velocity: predict()
-    else                                                                                     // scales by the dt ratio
+    if (st.registered)
+      persistence_.add(motion_difference(result.delta, RigidTransform::identity()), dt);
+    else
       persistence_.interrupt();
     last_dt_ = (std::isfinite(dt) && dt > 0.0) ? dt : last_dt_;
     have_velocity_ = true;
