@@ -128,3 +128,28 @@ def test_reset_forgets_the_persistence():
     after = [odom.register_depth(data.depth(i), data.K, float(data.stamps[i])).stats["persistence"]
              for i in range(20, 40)]
     assert all(p == (1.0,) * 6 for p in after[:12]) and after[12] != (1.0,) * 6, after[10:14]
+
+
+def test_motion_held_from_the_prediction_is_not_scaled_again():
+    """A frame held at its prediction (here: empty depth images after 40 real fr1/xyz frames) took the scaled last
+    motion; the next prediction carries that as it is, so a run of frames the lines cannot register keeps one
+    constant velocity (as the held directions of docs/NODE.md promise) instead of decaying by the factors every frame."""
+    import line_odom_core
+    from line_odom.datasets import tum_sequence
+
+    data = tum_sequence(40)
+    odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": 10}))
+    for i in range(40):
+        last = odom.register_depth(data.depth(i), data.K, float(data.stamps[i]))
+    assert min(last.stats["persistence"]) < 0.5, last.stats["persistence"]
+    empty = np.full(data.depth(0).shape, np.nan, dtype=np.float32)
+    stamp = float(data.stamps[39])
+    held = []
+    for _ in range(5):
+        stamp += 1.0 / 32.0  # a binary fraction: equal intervals to the bit
+        res = odom.register_depth(empty, data.K, stamp)
+        assert res.stats["held_directions"] == 6 and np.all(np.isfinite(res.delta))
+        held.append(res.delta)
+    for delta in held[1:]:
+        np.testing.assert_allclose(delta, held[0], rtol=0, atol=1e-12)
+    assert np.linalg.norm(held[0][:3, 3]) < np.linalg.norm(last.delta[:3, 3]) * 1.2  # scaled once (dt ratio aside)

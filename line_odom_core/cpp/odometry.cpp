@@ -93,6 +93,7 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
 void Odometry::reset(const RigidTransform& pose) {
   pose_ = pose;
   last_delta_ = RigidTransform::identity();
+  last_held_projector_ = Mat6::Zero();
   persistence_.clear();
   last_dt_ = 0.0;
   prev_stamp_ = 0.0;
@@ -110,7 +111,11 @@ RigidTransform Odometry::predict(double stamp) const {
   if (std::isfinite(dt) && dt > 0.0 && last_dt_ > 0.0) alpha = std::clamp(dt / last_dt_, 0.0, 5.0);
   const Vec6 persistence = persistence_.factors();
   if (persistence == Vec6::Ones()) return scale_motion(last_delta_, alpha);
-  const Vec6 carried = persistence.cwiseProduct(motion_difference(last_delta_, RigidTransform::identity()));
+  // What the last frame took from its own prediction was scaled then: scaled again it would decay frame by frame
+  // along a direction the lines keep not observing (a corridor), so only the measured part is scaled.
+  const Vec6 last = motion_difference(last_delta_, RigidTransform::identity());
+  const Vec6 held = last_held_projector_ * last;
+  const Vec6 carried = persistence.cwiseProduct(last - held) + held;
   return scale_motion(apply_motion_difference(carried, RigidTransform::identity()), alpha);
 }
 
@@ -466,6 +471,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     const bool have = outcome.have;
     std::string failure = outcome.failure;
     const double ts = reg.fallback_translation_sigma, rs = reg.fallback_rotation_sigma_deg * kPi / 180.0;
+    Mat6 held_projector = Mat6::Zero();  // onto the directions of this frame's motion taken from the prediction
     if (have && !best_stats.degenerate && best_stats.covariance.allFinite()) {
       result.delta = best;
       const int constraints = std::max(1, best_stats.inliers + best_stats.plane_inliers);
@@ -490,6 +496,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
           else held.col(held_count++) = es.eigenvectors().col(k);
         }
         const Mat6 information = es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+        held_projector = held * held.transpose();
         // The estimate's error is (I - G) e_lines + G e_prediction (G = held_sensitivity): the free directions
         // are coupled to the held ones, so the prediction's error reaches them too. Fused, K = fused P_f^-1:
         // error (I - K + K G) e_prediction + K (I - G) e_lines.
@@ -540,6 +547,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       st.solver = "prediction";
       st.degenerate = true;
       st.held_directions = 6;
+      held_projector = Mat6::Identity();
       st.failure = failure.empty() ? "registration failed" : failure;
     }
     st.inliers = best_stats.inliers;
@@ -553,6 +561,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     pose_.R = q.normalized().toRotationMatrix();
     result.pose = pose_;
     last_delta_ = result.delta;
+    last_held_projector_ = held_projector;
     if (st.registered)
       persistence_.add(motion_difference(result.delta, RigidTransform::identity()), dt);
     else

@@ -165,6 +165,7 @@ class Odometry {
   RigidTransform pose_;
   RigidTransform last_delta_;
   MotionPersistence persistence_;
+  Mat6 last_held_projector_ = Mat6::Zero();  // onto the directions of last_delta_ that were the prediction's
   double last_dt_ = 0.0;
   double prev_stamp_ = 0.0;
   bool have_velocity_ = false;
