@@ -4,6 +4,8 @@ test hook, then end to end on TUM fr1/xyz (test_odometry_tum.py)."""
 import numpy as np
 import pytest
 
+import line_odom_core
+from line_odom.datasets import tum_sequence
 from line_odom_core import _core
 
 MIN_PAIRS = 10  # MotionPersistence::kMinPairs: constant velocity until then
@@ -116,9 +118,6 @@ def test_non_finite_motions_and_bad_arguments():
 def test_reset_forgets_the_persistence():
     """Through Odometry (tum_kinect at 1/100, real fr1/xyz frames): factors leave 1 after 10 velocity pairs and a
     reset starts over at constant velocity."""
-    import line_odom_core
-    from line_odom.datasets import tum_sequence
-
     data = tum_sequence(40)
     odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": 10}))
     before = [odom.register_depth(data.depth(i), data.K, float(data.stamps[i])).stats["persistence"]
@@ -134,9 +133,6 @@ def test_motion_held_from_the_prediction_is_not_scaled_again():
     """A frame held at its prediction (here: empty depth images after 40 real fr1/xyz frames) took the scaled last
     motion; the next prediction carries that as it is, so a run of frames the lines cannot register keeps one
     constant velocity (as the held directions of docs/NODE.md promise) instead of decaying by the factors every frame."""
-    import line_odom_core
-    from line_odom.datasets import tum_sequence
-
     data = tum_sequence(40)
     odom = line_odom_core.Odometry(line_odom_core.load_config("tum_kinect", {"downsample": 10}))
     for i in range(40):

@@ -6,11 +6,11 @@
 namespace line_odom {
 
 void MotionPersistence::add(const Vec6& motion, double dt) {
-  const bool interval_ok = std::isfinite(dt) && dt > 0.0 &&
-                           (previous_dt_ <= 0.0 || (dt <= kMaxIntervalRatio * previous_dt_ &&
-                                                    previous_dt_ <= kMaxIntervalRatio * dt));
+  const bool positive = std::isfinite(dt) && dt > 0.0;
+  const bool interval_ok = positive && (previous_dt_ <= 0.0 || (dt <= kMaxIntervalRatio * previous_dt_ &&
+                                                                previous_dt_ <= kMaxIntervalRatio * dt));
   const bool usable = window_ > 0 && interval_ok && motion.allFinite();
-  if (std::isfinite(dt) && dt > 0.0) previous_dt_ = dt;
+  if (positive) previous_dt_ = dt;
   if (!usable) {
     interrupt();
     return;

@@ -26,7 +26,6 @@ class MotionPersistence {
   void interrupt();                          // a frame without a registration: the next motion has no predecessor
   void clear();                              // and forget the statistics (a reset)
   Vec6 factors() const;                      // per axis, in [0, 1]
-  int pairs() const { return pairs_; }
 
  private:
   int window_ = 0;

@@ -104,18 +104,19 @@ void Odometry::reset(const RigidTransform& pose) {
   prev_coarse_features_ = ScanFeatures{};
 }
 
-RigidTransform Odometry::predict(double stamp) const {
+RigidTransform Odometry::predict(double stamp, Vec6* persistence) const {
+  *persistence = Vec6::Ones();
   if (!config_.registration.constant_velocity || !have_velocity_) return RigidTransform::identity();
   const double dt = stamp - prev_stamp_;
   double alpha = 1.0;
   if (std::isfinite(dt) && dt > 0.0 && last_dt_ > 0.0) alpha = std::clamp(dt / last_dt_, 0.0, 5.0);
-  const Vec6 persistence = persistence_.factors();
-  if (persistence == Vec6::Ones()) return scale_motion(last_delta_, alpha);
+  *persistence = persistence_.factors();
+  if (*persistence == Vec6::Ones()) return scale_motion(last_delta_, alpha);
   // What the last frame took from its own prediction was scaled then: scaled again it would decay frame by frame
   // along a direction the lines keep not observing (a corridor), so only the measured part is scaled.
   const Vec6 last = motion_difference(last_delta_, RigidTransform::identity());
   const Vec6 held = last_held_projector_ * last;
-  const Vec6 carried = persistence.cwiseProduct(last - held) + held;
+  const Vec6 carried = persistence->cwiseProduct(last - held) + held;
   return scale_motion(apply_motion_difference(carried, RigidTransform::identity()), alpha);
 }
 
@@ -441,8 +442,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     st.registered = true;
   } else {
     const double dt = stamp - prev_stamp_;
-    const RigidTransform prediction = predict(stamp);
-    if (have_velocity_ && config_.registration.constant_velocity) st.persistence = persistence_.factors();
+    const RigidTransform prediction = predict(stamp, &st.persistence);
     const RegistrationOptions& reg = config_.registration;
     RigidTransform start = prediction;
     bool coarse_used = false;

@@ -155,7 +155,7 @@ class Odometry {
   const ScanFeatures& last_features() const { return prev_features_; }
 
  private:
-  RigidTransform predict(double stamp) const;
+  RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
   // The passes of paper §6.3 from `start`; `prediction` bounds the accepted estimates.
   PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                                 const RigidTransform& start, bool limit_pairs, FrameStats* st) const;
