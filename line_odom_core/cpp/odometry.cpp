@@ -21,6 +21,10 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kHeldAxisCosine = 0.9;  // an axis this close to the held directions counts as held
+constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer than this (and the inlier threshold)
+                                                      // are one
+constexpr double kWeakShiftStep = 8.0;  // inlier thresholds between the shifts of a first motion's scan (the
+                                        // support peak of KITTI 04's forward motion: ~10 thresholds wide)
 
 class Stopwatch {
  public:
@@ -211,6 +215,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   std::unique_ptr<CandidateIndex> prev_index;  // frame a never moves: indexed once for all passes
   RefineResult last_refined;  // the refined guess of the last pass, when it converged
   bool last_refine_converged = false;
+  bool have_rival = false;
+  RigidTransform rival;
   for (int pass = 0; pass < reg.passes; ++pass) {
     stage = Stopwatch();
     if (!prev_index) prev_index = std::make_unique<CandidateIndex>(prev);
@@ -253,6 +259,12 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     }
     const double score_prior = have ? score_motion(table, best, thr, ropt.min_line_sine) : -1.0;
     const double score_refined = refined_ok ? score_guess : -1.0;
+    if (!guessed && ok && refined_ok) {
+      const RigidTransform& loser = score_ransac > score_refined ? refined.T : estimate;
+      const RigidTransform difference = loser.inverse() * (score_ransac > score_refined ? estimate : refined.T);
+      have_rival = difference.t.norm() > thr || rotation_angle(difference.R) > kRivalRotation;
+      rival = loser;
+    }
     st->ms.ransac += stage.ms();
 
     copt.max_distance *= reg.pass_distance_scale;
@@ -373,7 +385,84 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   out.stats = best_stats;
   out.have = have;
   out.failure = failure;
+  out.have_rival = have_rival;
+  out.rival = rival;
   return out;
+}
+
+// Without a guess the candidate pairs are the lines' closest partners under no motion, where the pairs of lines
+// along the motion (a highway's ground, rails and kerbs) all meet, whatever the speed: a sample with the right
+// motion loses on them to the unmoved guess, or is never drawn (KITTI 04 at 13 m/s, docs/RESULTS.md). So the
+// passes also run from the first pass's loser and from the best-supported shift along the estimate's least
+// observed translation, and the result kept is the one the candidates picked near each motion support most.
+PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures& cur,
+                                   const RigidTransform& prediction, FrameStats* st) const {
+  PassOutcome outcome = register_features(prev, cur, prediction, prediction, false, st);
+  if (!outcome.have || outcome.stats.degenerate || !outcome.stats.covariance.allFinite()) return outcome;
+  Stopwatch scan;
+  CandidateIndex index(prev);
+  double best_support = support(index, cur, outcome.best);
+  std::vector<RigidTransform> starts;
+  if (outcome.have_rival) starts.push_back(outcome.rival);
+  RigidTransform peak;
+  if (weak_translation_peak(index, cur, outcome, &peak)) starts.push_back(peak);
+  st->ms.candidates += scan.ms();
+  for (const RigidTransform& start : starts) {
+    FrameStats other_stats;
+    PassOutcome other = register_features(prev, cur, prediction, start, true, &other_stats);
+    st->ms.candidates += other_stats.ms.candidates;
+    st->ms.ransac += other_stats.ms.ransac;
+    st->iterations += other_stats.iterations;
+    if (!other.have || other.stats.degenerate) continue;
+    scan = Stopwatch();
+    const double other_support = support(index, cur, other.best);
+    st->ms.candidates += scan.ms();
+    if (other_support <= best_support) continue;
+    best_support = other_support;
+    outcome = other;
+    st->candidates = other_stats.candidates;
+    st->plane_candidates = other_stats.plane_candidates;
+    st->passes = other_stats.passes;
+  }
+  return outcome;
+}
+
+// The shifts of the estimate along its least observed translation (largest covariance eigenvalue) every
+// kWeakShiftStep inlier thresholds out to the candidate distance, each scored on the candidates within a quarter
+// of that distance, with half a step of tolerance (the axis is the estimate's, not exactly the motion's): true
+// when one out-supports the estimate itself.
+bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
+                                     RigidTransform* peak) const {
+  const Eigen::SelfAdjointEigenSolver<Mat3> eigen(outcome.stats.covariance.topLeftCorner<3, 3>());
+  if (eigen.info() != Eigen::Success) return false;
+  const Vec3 weakest = eigen.eigenvectors().col(2);
+  const double step = kWeakShiftStep * config_.ransac.inlier_threshold;
+  const int steps = static_cast<int>(config_.candidates.max_distance / step);
+  const double tolerance = 0.5 * kWeakShiftStep;
+  const double reach = 0.25 * config_.candidates.max_distance;
+  double best = support(index, cur, outcome.best, tolerance, reach);
+  const double estimate_tolerant = best;
+  for (int k = -steps; k <= steps; ++k) {
+    if (k == 0) continue;
+    RigidTransform shifted = outcome.best;
+    shifted.t += k * step * weakest;
+    const double s = support(index, cur, shifted, tolerance, reach);
+    if (s > best) {
+      best = s;
+      *peak = shifted;
+    }
+  }
+  return best > estimate_tolerant;
+}
+
+double Odometry::support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
+                         double threshold_scale, double max_distance) const {
+  Correspondences corr;
+  CandidateOptions options = config_.candidates;
+  if (max_distance > 0.0) options.max_distance = options.plane_max_distance = max_distance;
+  build_candidates(index, cur, T, options, &corr, nullptr, pool_.get());
+  return score_motion(LinePairTable(corr), T, threshold_scale * config_.ransac.inlier_threshold,
+                      RefineOptions{}.min_line_sine);
 }
 
 // Organize only the rows and columns downsampling keeps; while the first motion is searched at
@@ -461,8 +550,12 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
         coarse_used = true;
       }
     }
-    PassOutcome outcome = register_features(prev_features_, features, prediction, start,
-                                            have_velocity_ || coarse_used, &st);
+    // Searched without a guess, finer than registration.coarse_downsample: also from other starts (first_motion).
+    const bool finer_than_coarse = coarse_step <= 0 || config_.downsample < coarse_step;
+    PassOutcome outcome = have_velocity_ || coarse_used || !finer_than_coarse
+                              ? register_features(prev_features_, features, prediction, start,
+                                                  have_velocity_ || coarse_used, &st)
+                              : first_motion(prev_features_, features, prediction, &st);
     // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
     // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
     if (coarse_used && !(outcome.have && !outcome.stats.degenerate)) outcome = coarse;

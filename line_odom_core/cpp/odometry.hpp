@@ -122,6 +122,10 @@ struct PassOutcome {
   std::string failure;
   int held_directions = 0;  // of a partial estimate: directions of xi held at the prediction
   Mat6 held_sensitivity = Mat6::Zero();  // ... and how it moves with the prediction (RefineResult)
+  // Searched without a guess: the first pass's loser of the RANSAC sample and the refined guess, when the two
+  // are different motions (the candidates, picked near the guess, favour it: odometry.cpp first_motion).
+  bool have_rival = false;
+  RigidTransform rival;
 };
 
 class Odometry {
@@ -159,6 +163,16 @@ class Odometry {
   // The passes of paper §6.3 from `start`; `prediction` bounds the accepted estimates.
   PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                                 const RigidTransform& start, bool limit_pairs, FrameStats* st) const;
+  // register_features without a guess, and again from other starts (odometry.cpp); the result the candidates
+  // picked near it support most.
+  PassOutcome first_motion(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
+                           FrameStats* st) const;
+  bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
+                             RigidTransform* peak) const;
+  // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
+  // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
+  double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
+                 double threshold_scale = 1.0, double max_distance = 0.0) const;
 
   OdometryConfig config_;
   SensorModel sensor_;
