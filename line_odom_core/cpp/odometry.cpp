@@ -25,6 +25,7 @@ constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer th
                                                       // are one
 constexpr double kWeakShiftStep = 8.0;  // inlier thresholds between the shifts of a first motion's scan (the
                                         // support peak of KITTI 04's forward motion: ~10 thresholds wide)
+constexpr double kSameAxisCosine = 0.999;  // a weakest direction within 2.6 deg of a sensor axis is scanned once
 
 class Stopwatch {
  public:
@@ -427,29 +428,35 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
   return outcome;
 }
 
-// The shifts of the estimate along its least observed translation (largest covariance eigenvalue) every
-// kWeakShiftStep inlier thresholds out to the candidate distance, each scored on the candidates within a quarter
-// of that distance, with half a step of tolerance (the axis is the estimate's, not exactly the motion's): true
-// when one out-supports the estimate itself.
+// The shifts of the estimate along its least observed translation (largest covariance eigenvalue), and along the
+// sensor axis nearest to it (vehicles move along one: where two directions are about as weak the eigenvector mixes
+// them), every kWeakShiftStep inlier thresholds out to the candidate distance, each scored on the candidates within
+// a quarter of that distance with half a step of tolerance: true when one out-supports the estimate itself.
 bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
                                      RigidTransform* peak) const {
   const Eigen::SelfAdjointEigenSolver<Mat3> eigen(outcome.stats.covariance.topLeftCorner<3, 3>());
   if (eigen.info() != Eigen::Success) return false;
   const Vec3 weakest = eigen.eigenvectors().col(2);
+  Eigen::Index nearest = 0;
+  weakest.cwiseAbs().maxCoeff(&nearest);
+  std::vector<Vec3> axes{weakest};
+  if (std::abs(weakest(nearest)) < kSameAxisCosine) axes.push_back(Vec3::Unit(nearest));
   const double step = kWeakShiftStep * config_.ransac.inlier_threshold;
   const int steps = static_cast<int>(config_.candidates.max_distance / step);
   const double tolerance = 0.5 * kWeakShiftStep;
   const double reach = 0.25 * config_.candidates.max_distance;
   double best = support(index, cur, outcome.best, tolerance, reach);
   const double estimate_tolerant = best;
-  for (int k = -steps; k <= steps; ++k) {
-    if (k == 0) continue;
-    RigidTransform shifted = outcome.best;
-    shifted.t += k * step * weakest;
-    const double s = support(index, cur, shifted, tolerance, reach);
-    if (s > best) {
-      best = s;
-      *peak = shifted;
+  for (const Vec3& axis : axes) {
+    for (int k = -steps; k <= steps; ++k) {
+      if (k == 0) continue;
+      RigidTransform shifted = outcome.best;
+      shifted.t += k * step * axis;
+      const double s = support(index, cur, shifted, tolerance, reach);
+      if (s > best) {
+        best = s;
+        *peak = shifted;
+      }
     }
   }
   return best > estimate_tolerant;
