@@ -268,3 +268,15 @@ def test_first_motion_found_mid_drive_on_the_highway(start):
     t, _ = relative_pose_errors(np.array([r.pose for r in results]), data.poses[start:])
     assert t[0] < 0.1 and t.mean() < 0.05, t
     assert all(r.stats["registered"] and not r.stats["degenerate"] for r in results[1:])
+
+
+def test_first_motion_search_is_the_same_on_two_threads():
+    # The first motion's extra starts and support scans run their candidate search on the pool too.
+    data = kitti_sequence("04", 4)
+    deltas = []
+    for threads in (1, 2):
+        odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"threads": threads}))
+        odom.register_points(data.xyz(2), float(data.times[2]))
+        deltas.append(odom.register_points(data.xyz(3), float(data.times[3])).delta)
+    assert np.array_equal(deltas[0], deltas[1])
+    assert abs(deltas[0][0, 3] - 1.3) < 0.1, deltas[0]
