@@ -25,6 +25,7 @@ constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer th
                                                       // are one
 constexpr double kWeakShiftStep = 8.0;  // inlier thresholds between the shifts of a first motion's scan (the
                                         // support peak of KITTI 04's forward motion: ~10 thresholds wide)
+constexpr double kMaxShiftSteps = 25.0;  // per side and axis, however small the inlier threshold
 constexpr double kSameAxisCosine = 0.999;  // a weakest direction within 2.6 deg of a sensor axis is scanned once
 
 class Stopwatch {
@@ -441,9 +442,10 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
   weakest.cwiseAbs().maxCoeff(&nearest);
   std::vector<Vec3> axes{weakest};
   if (std::abs(weakest(nearest)) < kSameAxisCosine) axes.push_back(Vec3::Unit(nearest));
-  const double step = kWeakShiftStep * config_.ransac.inlier_threshold;
+  const double threshold = config_.ransac.inlier_threshold;
+  const double step = std::max(kWeakShiftStep * threshold, config_.candidates.max_distance / kMaxShiftSteps);
   const int steps = static_cast<int>(config_.candidates.max_distance / step);
-  const double tolerance = 0.5 * kWeakShiftStep;
+  const double tolerance = 0.5 * step / threshold;
   const double reach = 0.25 * config_.candidates.max_distance;
   double best = support(index, cur, outcome.best, tolerance, reach);
   const double estimate_tolerant = best;
