@@ -45,6 +45,21 @@ def kiss_available() -> bool:
 KISS_HINT = "KISS-ICP is not installed: `.venv/bin/pip install kiss-icp` (benchmark-only dependency)"
 
 
+def overrides_and_kiss(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[dict, bool]:
+    """The engine overrides of --set (a usage error when one is malformed) and whether KISS-ICP runs (not
+    --no-kiss, and installed; else the install hint is printed)."""
+    from line_odom.cli import parse_overrides
+
+    try:
+        overrides = parse_overrides(args.set)
+    except ValueError as err:
+        parser.error(str(err))
+    kiss = not args.no_kiss and kiss_available()
+    if not args.no_kiss and not kiss:
+        print(KISS_HINT)
+    return overrides, kiss
+
+
 def kiss_odometry(max_range: float, threads: int = 0):
     from kiss_icp.config import load_config
     from kiss_icp.kiss_icp import KissICP
@@ -304,16 +319,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.only == "sim":
         args.sim = True
-
-    from line_odom.cli import parse_overrides
-
-    try:
-        overrides = parse_overrides(args.set)
-    except ValueError as err:
-        parser.error(str(err))
-    kiss = not args.no_kiss and kiss_available()
-    if not args.no_kiss and not kiss:
-        print(KISS_HINT)
+    overrides, kiss = overrides_and_kiss(parser, args)
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; "
           f"KISS-ICP {'on' if kiss else 'off'} (deskew off, voxel = max_range / 100)")
     rows: list[Row] = []

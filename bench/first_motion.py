@@ -23,7 +23,7 @@ import numpy as np
 sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 import line_odom_core  # noqa: E402
-from accuracy import KISS_HINT, kiss_available, kiss_odometry  # noqa: E402
+from accuracy import kiss_odometry, overrides_and_kiss  # noqa: E402
 from line_odom.datasets import kitti_sequence  # noqa: E402
 
 WRONG = 0.1  # m: a first motion further than this from the ground truth's is wrong (KITTI moves 0.1-1.3 m/frame)
@@ -67,16 +67,7 @@ def main(argv=None) -> int:
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="engine setting overrides (dotted names)")
     args = parser.parse_args(argv)
-
-    from line_odom.cli import parse_overrides
-
-    try:
-        overrides = parse_overrides(args.set)
-    except ValueError as err:
-        parser.error(str(err))
-    kiss = not args.no_kiss and kiss_available()
-    if not args.no_kiss and not kiss:
-        print(KISS_HINT)
+    overrides, kiss = overrides_and_kiss(parser, args)
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; KISS-ICP "
           f"{'on' if kiss else 'off'}; a fresh start at every frame pair; wrong: > {WRONG} m off")
     print(f"{'seq':4} {'res':5} {'n':>2} | {'line_odom mean/max t [m]':>24} {'wrong':>5} {'flagged':>7} | "
