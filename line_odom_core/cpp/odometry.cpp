@@ -262,10 +262,10 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     const double score_prior = have ? score_motion(table, best, thr, ropt.min_line_sine) : -1.0;
     const double score_refined = refined_ok ? score_guess : -1.0;
     if (!guessed && ok && refined_ok) {
-      const RigidTransform& loser = score_ransac > score_refined ? refined.T : estimate;
-      const RigidTransform difference = loser.inverse() * (score_ransac > score_refined ? estimate : refined.T);
+      const bool sample_won = score_ransac > score_refined;
+      rival = sample_won ? refined.T : estimate;
+      const RigidTransform difference = rival.inverse() * (sample_won ? estimate : refined.T);
       have_rival = difference.t.norm() > thr || rotation_angle(difference.R) > kRivalRotation;
-      rival = loser;
     }
     st->ms.ransac += stage.ms();
 
@@ -431,8 +431,9 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
 
 // The shifts of the estimate along its least observed translation (largest covariance eigenvalue), and along the
 // sensor axis nearest to it (vehicles move along one: where two directions are about as weak the eigenvector mixes
-// them), every kWeakShiftStep inlier thresholds out to the candidate distance, each scored on the candidates within
-// a quarter of that distance with half a step of tolerance: true when one out-supports the estimate itself.
+// them), every kWeakShiftStep inlier thresholds (at most kMaxShiftSteps per side) out to the candidate distance,
+// each scored on the candidates within a quarter of that distance with half a step of tolerance: true when one
+// out-supports the estimate itself.
 bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
                                      RigidTransform* peak) const {
   const Eigen::SelfAdjointEigenSolver<Mat3> eigen(outcome.stats.covariance.topLeftCorner<3, 3>());
@@ -560,11 +561,11 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       }
     }
     // Searched without a guess, finer than registration.coarse_downsample: also from other starts (first_motion).
+    const bool guessed = have_velocity_ || coarse_used;
     const bool finer_than_coarse = coarse_step <= 0 || config_.downsample < coarse_step;
-    PassOutcome outcome = have_velocity_ || coarse_used || !finer_than_coarse
-                              ? register_features(prev_features_, features, prediction, start,
-                                                  have_velocity_ || coarse_used, &st)
-                              : first_motion(prev_features_, features, prediction, &st);
+    PassOutcome outcome = !guessed && finer_than_coarse
+                              ? first_motion(prev_features_, features, prediction, &st)
+                              : register_features(prev_features_, features, prediction, start, guessed, &st);
     // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
     // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
     if (coarse_used && !(outcome.have && !outcome.stats.degenerate)) outcome = coarse;
