@@ -26,7 +26,20 @@ constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer th
 constexpr double kWeakShiftStep = 8.0;  // inlier thresholds between the shifts of a first motion's scan (the
                                         // support peak of KITTI 04's forward motion: ~10 thresholds wide)
 constexpr double kMaxShiftSteps = 25.0;  // per side and axis, however small the inlier threshold
-constexpr double kSameAxisCosine = 0.999;  // a weakest direction within 2.6 deg of a sensor axis is scanned once
+constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (every k-th): the same peaks on KITTI
+                                         // as all 3000, at a fifth of the cost (docs/RESULTS.md)
+
+// Every k-th line of each direction, k the smallest keeping at most max_lines in all; the planes as they are.
+ScanFeatures every_kth_line(const ScanFeatures& features, std::size_t max_lines) {
+  const std::size_t lines = features.h_lines.size() + features.v_lines.size();
+  const std::size_t k = std::max<std::size_t>(1, (lines + max_lines - 1) / max_lines);
+  ScanFeatures out;
+  out.planes = features.planes;
+  out.cluster_directions = features.cluster_directions;
+  for (std::size_t i = 0; i < features.h_lines.size(); i += k) out.h_lines.push_back(features.h_lines[i]);
+  for (std::size_t i = 0; i < features.v_lines.size(); i += k) out.v_lines.push_back(features.v_lines[i]);
+  return out;
+}
 
 class Stopwatch {
  public:
@@ -394,12 +407,15 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
 
 // Without a guess the candidate pairs are the lines' closest partners under no motion, where the pairs of lines
 // along the motion (a highway's ground, rails and kerbs) all meet, whatever the speed: a sample with the right
-// motion loses on them to the unmoved guess, or is never drawn (KITTI 04 at 13 m/s, docs/RESULTS.md). So the
-// passes also run from the first pass's loser and from the best-supported shift along the estimate's least
-// observed translation, and the result kept is the one the candidates picked near each motion support most.
+// motion loses on them to the unmoved guess, or is never drawn (KITTI 04 at 13 m/s, docs/RESULTS.md). The coarse
+// search's motion, when it gave one, can be as wrong (KITTI 00 every third scan, 2.6 m a scan: 0.2 m back). So
+// the passes also run from the first pass's loser and from the best-supported shift (weak_translation_peak), and
+// the result kept is the one the candidates picked near each motion support most.
 PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures& cur,
-                                   const RigidTransform& prediction, FrameStats* st) const {
-  PassOutcome outcome = register_features(prev, cur, prediction, prediction, false, st);
+                                   const RigidTransform& prediction, const RigidTransform* coarse_motion,
+                                   FrameStats* st) const {
+  const bool guessed = coarse_motion != nullptr;
+  PassOutcome outcome = register_features(prev, cur, prediction, guessed ? *coarse_motion : prediction, guessed, st);
   if (!outcome.have || outcome.stats.degenerate || !outcome.stats.covariance.allFinite()) return outcome;
   Stopwatch scan;
   CandidateIndex index(prev);
@@ -407,7 +423,7 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
   std::vector<RigidTransform> starts;
   if (outcome.have_rival) starts.push_back(outcome.rival);
   RigidTransform peak;
-  if (weak_translation_peak(index, cur, outcome, &peak)) starts.push_back(peak);
+  if (weak_translation_peak(index, cur, outcome, prediction, &peak)) starts.push_back(peak);
   st->ms.candidates += scan.ms();
   for (const RigidTransform& start : starts) {
     FrameStats other_stats;
@@ -429,40 +445,61 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
   return outcome;
 }
 
-// The shifts of the estimate along its least observed translation (largest covariance eigenvalue), and along the
-// sensor axis nearest to it (vehicles move along one: where two directions are about as weak the eigenvector mixes
-// them), every kWeakShiftStep inlier thresholds (at most kMaxShiftSteps per side) out to the candidate distance,
-// each scored on the candidates within a quarter of that distance with half a step of tolerance: true when one
-// out-supports the estimate itself.
+// The shifts of the estimate along its least observed translation (largest covariance eigenvalue), and of the
+// prediction along each sensor axis (vehicles move along one; a wrong sample's rotation would hide the right shift,
+// and where two directions are about as weak the eigenvector mixes them), every kWeakShiftStep inlier thresholds
+// (at most kMaxShiftSteps per side) out to the largest motion the registration accepts
+// (registration.max_translation, at least the candidate distance). Each is scored on up to kScanLines of the scan's
+// lines and the candidates within a quarter of the candidate distance, with half a step of tolerance: true when
+// one out-supports the estimate itself.
 bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
-                                     RigidTransform* peak) const {
+                                     const RigidTransform& prediction, RigidTransform* peak) const {
   const Eigen::SelfAdjointEigenSolver<Mat3> eigen(outcome.stats.covariance.topLeftCorner<3, 3>());
   if (eigen.info() != Eigen::Success) return false;
-  const Vec3 weakest = eigen.eigenvectors().col(2);
-  Eigen::Index nearest = 0;
-  weakest.cwiseAbs().maxCoeff(&nearest);
-  std::vector<Vec3> axes{weakest};
-  if (std::abs(weakest(nearest)) < kSameAxisCosine) axes.push_back(Vec3::Unit(nearest));
+  std::vector<std::pair<RigidTransform, Vec3>> scans{{outcome.best, eigen.eigenvectors().col(2)}};
+  for (int axis = 0; axis < 3; ++axis) scans.emplace_back(prediction, Vec3::Unit(axis));
+  const ScanFeatures scored = every_kth_line(cur, kScanLines);
   const double threshold = config_.ransac.inlier_threshold;
-  const double step = std::max(kWeakShiftStep * threshold, config_.candidates.max_distance / kMaxShiftSteps);
-  const int steps = static_cast<int>(config_.candidates.max_distance / step);
+  const double range = std::max(config_.candidates.max_distance, config_.registration.max_translation);
+  const double step = std::max(kWeakShiftStep * threshold, range / kMaxShiftSteps);
+  const int steps = static_cast<int>(range / step + 1e-9);
   const double tolerance = 0.5 * step / threshold;
   const double reach = 0.25 * config_.candidates.max_distance;
-  double best = support(index, cur, outcome.best, tolerance, reach);
+  double best = support(index, scored, outcome.best, tolerance, reach);
   const double estimate_tolerant = best;
-  for (const Vec3& axis : axes) {
+  Vec3 peak_axis = Vec3::Zero();
+  for (const auto& [origin, axis] : scans) {
     for (int k = -steps; k <= steps; ++k) {
       if (k == 0) continue;
-      RigidTransform shifted = outcome.best;
+      RigidTransform shifted = origin;
       shifted.t += k * step * axis;
-      const double s = support(index, cur, shifted, tolerance, reach);
+      const double s = support(index, scored, shifted, tolerance, reach);
       if (s > best) {
         best = s;
+        *peak = shifted;
+        peak_axis = axis;
+      }
+    }
+  }
+  if (!(best > estimate_tolerant)) return false;
+  // The peak to a quarter step: half and a quarter of a step either side, with as much tolerance.
+  double fine_step = step, fine_tolerance = tolerance;
+  for (int round = 0; round < 2; ++round) {
+    fine_step *= 0.5;
+    fine_tolerance *= 0.5;
+    const RigidTransform centre = *peak;
+    double centre_support = support(index, scored, centre, fine_tolerance, reach);
+    for (const double side : {-1.0, 1.0}) {
+      RigidTransform shifted = centre;
+      shifted.t += side * fine_step * peak_axis;
+      const double s = support(index, scored, shifted, fine_tolerance, reach);
+      if (s > centre_support) {
+        centre_support = s;
         *peak = shifted;
       }
     }
   }
-  return best > estimate_tolerant;
+  return true;
 }
 
 double Odometry::support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
@@ -560,12 +597,14 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
         coarse_used = true;
       }
     }
-    // Searched without a guess, finer than registration.coarse_downsample: also from other starts (first_motion).
+    // No velocity yet, finer than registration.coarse_downsample: from the coarse motion (or standing still) and
+    // from other starts (first_motion).
     const bool guessed = have_velocity_ || coarse_used;
     const bool finer_than_coarse = coarse_step <= 0 || config_.downsample < coarse_step;
-    PassOutcome outcome = !guessed && finer_than_coarse
-                              ? first_motion(prev_features_, features, prediction, &st)
-                              : register_features(prev_features_, features, prediction, start, guessed, &st);
+    PassOutcome outcome =
+        !have_velocity_ && finer_than_coarse
+            ? first_motion(prev_features_, features, prediction, coarse_used ? &coarse.best : nullptr, &st)
+            : register_features(prev_features_, features, prediction, start, guessed, &st);
     // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
     // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
     if (coarse_used && !(outcome.have && !outcome.stats.degenerate)) outcome = coarse;

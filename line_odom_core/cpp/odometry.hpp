@@ -163,12 +163,12 @@ class Odometry {
   // The passes of paper §6.3 from `start`; `prediction` bounds the accepted estimates.
   PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                                 const RigidTransform& start, bool limit_pairs, FrameStats* st) const;
-  // register_features without a guess, and again from other starts (odometry.cpp); the result the candidates
-  // picked near it support most.
+  // register_features from the coarse search's motion (or without a guess), and again from other starts
+  // (odometry.cpp); the result the candidates picked near it support most.
   PassOutcome first_motion(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
-                           FrameStats* st) const;
+                           const RigidTransform* coarse_motion, FrameStats* st) const;
   bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
-                             RigidTransform* peak) const;
+                             const RigidTransform& prediction, RigidTransform* peak) const;
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
   // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
   double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
