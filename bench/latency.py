@@ -47,7 +47,8 @@ def kitti_frames(seqs):
 def time_frames(register, kiss_odom, kiss_points, inputs, stage_ms, call_ms, kiss_ms):
     """Times register(item) and, with kiss_odom, KISS-ICP on kiss_points(item) for every item; the first frame of
     the run is left out (nothing to register against). stage_ms["steady"] gets the totals of the frames after the
-    first registration (those with a motion prediction: the node's cost per frame once running)."""
+    first registration (those with a motion prediction: the node's cost per frame once running), stage_ms["first"]
+    that of the first registration (the first motion's search, once per run)."""
     for k, item in enumerate(inputs):
         t0 = time.perf_counter()
         result = register(item)
@@ -62,8 +63,7 @@ def time_frames(register, kiss_odom, kiss_points, inputs, stage_ms, call_ms, kis
         call_ms.append(call)
         for s in STAGES:
             stage_ms[s].append(result.stats["ms"][s])
-        if k >= 2:
-            stage_ms["steady"].append(result.stats["ms"]["total"])
+        stage_ms["steady" if k >= 2 else "first"].append(result.stats["ms"]["total"])
         stage_ms["fitted"].append(result.stats["h_lines"] + result.stats["v_lines"])  # on every fit_step-th row
         stage_ms["registered"].append(result.stats["registered_lines"])
         if kiss_odom is not None:
@@ -71,7 +71,7 @@ def time_frames(register, kiss_odom, kiss_points, inputs, stage_ms, call_ms, kis
 
 
 def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat, overrides=None):
-    stage_ms = {s: [] for s in (*STAGES, "steady", "fitted", "registered")}
+    stage_ms = {s: [] for s in (*STAGES, "steady", "first", "fitted", "registered")}
     call_ms, kiss_ms = [], []
     for _ in range(repeat):
         for _seq, frames in frames_by_seq:
@@ -87,7 +87,7 @@ def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat, overrides=None)
 def time_depth(level, frames, kiss, kiss_threads, repeat, overrides=None):
     data = tum_sequence(frames)
     depths = [(data.depth(i), float(data.stamps[i])) for i in range(len(data))]
-    stage_ms = {s: [] for s in (*STAGES, "steady", "fitted", "registered")}
+    stage_ms = {s: [] for s in (*STAGES, "steady", "first", "fitted", "registered")}
     call_ms, kiss_ms = [], []
     for _ in range(repeat):
         odom = line_odom_core.Odometry(
@@ -103,19 +103,24 @@ def time_depth(level, frames, kiss, kiss_threads, repeat, overrides=None):
     return stage_ms, call_ms, kiss_ms
 
 
+def steady_ms(stage_ms) -> float:
+    """Mean ms of the frames with a motion prediction (all of them when a run has only its first registration)."""
+    return float(np.mean(stage_ms["steady"] or stage_ms["total"]))
+
+
 def goal_text(name, level, stage_ms, kiss_ms):
-    total = float(np.mean(stage_ms["total"]))
+    steady = steady_ms(stage_ms)
     parts = []
     if name == "kitti" and level == 1:
         if kiss_ms:
-            parts.append(f"total <= KISS/2: {'MET' if total <= 0.5 * np.mean(kiss_ms) else 'MISSED'}")
-        parts.append(f">= 20 Hz: {'MET' if total <= 50.0 else 'MISSED'}")
+            parts.append(f"steady <= KISS/2: {'MET' if steady <= 0.5 * np.mean(kiss_ms) else 'MISSED'}")
+        parts.append(f">= 20 Hz: {'MET' if steady <= 50.0 else 'MISSED'}")
     elif name == "kitti" and level == ALL_LINES:
         parts.append(f"line fitting <= 10 ms: {'MET' if np.mean(stage_ms['lines']) <= 10.0 else 'MISSED'}")
     elif name == "kitti" and level == 6:
-        parts.append(f"total <= 5 ms: {'MET' if total <= 5.0 else 'MISSED'}")
+        parts.append(f"steady <= 5 ms: {'MET' if steady <= 5.0 else 'MISSED'}")
     elif name == "tum" and level == 10:
-        parts.append(f"total <= 3 ms: {'MET' if total <= 3.0 else 'MISSED'}")
+        parts.append(f"steady <= 3 ms: {'MET' if steady <= 3.0 else 'MISSED'}")
     return "; ".join(parts) or "-"
 
 
@@ -139,11 +144,12 @@ def main(argv=None) -> int:
     print(f"line_odom_core {line_odom_core.__version__} ({line_odom_core.build_info()['flags']}), "
           f"threads {args.threads}; KISS-ICP "
           f"{'on, ' + str(args.kiss_threads) + ' thread(s)' if kiss else 'off'}; mean ms per frame (p50 and p95 of total;"
-          " steady = mean total without each run's first registration, which searches the first motion;"
+          " steady = mean total without each run's first registration, which searches the first motion once a run"
+          " (first: its mean); ratio = steady / KISS-ICP's mean; the goals are for steady frames;"
           " lines = fitted / registered per frame, registration.max_lines; res all = full resolution with"
           " registration.max_lines 0, every row and column fitted and registered)")
     head = (f"{'data':5} {'res':5} {'n':>4} | " + " ".join(f"{s:>10}" for s in STAGES) +
-            f" {'p50':>7} {'p95':>7} {'steady':>7} {'call':>7} {'lines':>11} | {'KISS-ICP':>8} {'ratio':>6} | goal")
+            f" {'p50':>7} {'p95':>7} {'steady':>7} {'first':>7} {'call':>7} {'lines':>11} | {'KISS-ICP':>8} {'ratio':>6} | goal")
     print(head)
     print("-" * len(head))
     cases = []
@@ -170,11 +176,12 @@ def print_row(name, level, measured):
     res = "all" if level == ALL_LINES else "full" if level == 1 else f"1/{level * level}"
     cells = " ".join(f"{np.mean(stage_ms[s]):10.2f}" for s in STAGES)
     p50, p95 = np.percentile(stage_ms["total"], [50, 95])
-    kiss = f"{np.mean(kiss_ms):8.1f} {np.mean(stage_ms['total']) / np.mean(kiss_ms):6.2f}" if kiss_ms else \
+    kiss = f"{np.mean(kiss_ms):8.1f} {steady_ms(stage_ms) / np.mean(kiss_ms):6.2f}" if kiss_ms else \
         f"{'n/a':>8} {'':>6}"
     steady = f"{np.mean(stage_ms['steady']):7.2f}" if stage_ms["steady"] else f"{'-':>7}"
+    first = f"{np.mean(stage_ms['first']):7.2f}" if stage_ms["first"] else f"{'-':>7}"
     lines = f"{np.mean(stage_ms['fitted']):.0f}/{np.mean(stage_ms['registered']):.0f}"
-    print(f"{name:5} {res:5} {len(call_ms):4d} | {cells} {p50:7.2f} {p95:7.2f} {steady} {np.mean(call_ms):7.2f} {lines:>11} | {kiss} | "
+    print(f"{name:5} {res:5} {len(call_ms):4d} | {cells} {p50:7.2f} {p95:7.2f} {steady} {first} {np.mean(call_ms):7.2f} {lines:>11} | {kiss} | "
           f"{goal_text(name, level, stage_ms, kiss_ms)}", flush=True)
 
 

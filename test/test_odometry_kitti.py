@@ -275,8 +275,9 @@ def test_first_motion_found_beyond_the_candidate_distance(stride, start):
     # Every 2nd / 3rd scan of KITTI 04: 2.6 / 3.9 m a scan (26 / 39 m/s at 10 Hz, or a 5 Hz sensor at 13 / 20 m/s),
     # beyond the candidates' 2 m. Measured before the first motion's support scan reached registration.max_translation
     # and shifted the prediction along each sensor axis: stride 2 from scan 0 reported ~0 m (2.63 m off), from scan 1
-    # 1.41 m (1.22 m off), registered and not degenerate, and every later scan followed it; KISS-ICP on the same scans
-    # 0.011-0.056 m. Now 0.019-0.048 m at starts 0-2 of both strides (docs/RESULTS.md).
+    # 1.41 m (1.22 m off), stride 3 ~0 m (3.9 m off), registered and not degenerate, and every later scan followed
+    # it. Now 0.019-0.048 m at starts 0-2 of both strides; KISS-ICP on the same scans missed 3 of those 6 first
+    # motions by 2.6-4.0 m (docs/RESULTS.md).
     data = kitti_sequence("04")
     scans = list(range(start, len(data), stride))
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64"))
@@ -289,7 +290,7 @@ def test_first_motion_found_beyond_the_candidate_distance(stride, start):
 def test_first_motion_from_the_coarse_search_is_checked():
     # KITTI 00 every 3rd scan from scan 1 (2.2-2.6 m a scan): the coarse search (1/36) gave a motion 0.2 m backwards,
     # and the full resolution, refining only that, reported it (-0.196 m, registered, not degenerate). Now the
-    # first motion's other starts compete with it too: 2.12 m (KISS-ICP on the same scans 2.18 m; 00's ground truth
+    # first motion's other starts compete with it too: 2.22 m (KISS-ICP on the same scans 2.18 m; 00's ground truth
     # says 2.58 m, but its scans show 0.68-0.81 m a frame, docs/RESULTS.md).
     data = kitti_sequence("00", 5)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64"))
