@@ -3,14 +3,17 @@
 
     .venv/bin/python bench/first_motion.py                    # KITTI 00/04/07 at 1, 1/36, 1/64
     .venv/bin/python bench/first_motion.py --kitti 04 --levels 1
+    .venv/bin/python bench/first_motion.py --strides 1 2 3    # also every 2nd / 3rd scan (2.6 / 3.9 m a scan on 04)
     .venv/bin/python bench/first_motion.py --no-kiss --set registration.coarse_downsample=0
 
 A replay from the middle of a drive, a node restart or a stamp gap beyond registration.max_prediction_gap starts
 the registration without a velocity: the motion is searched from standing still. bench/accuracy.py runs every
 sequence from frame 0 only, so here each frame pair k -> k+1 gets its own fresh Odometry (and a fresh KISS-ICP on
-exactly the points line_odom keeps, deskew off). Printed per sequence and resolution: the mean / max translation
-error (m) of those first motions, how many were more than 0.1 m off ("wrong"), and of those how many line_odom
-flagged (registration failed or held: "flagged") instead of reporting them as registered motions.
+exactly the points line_odom keeps, deskew off). With --strides s the pairs are k -> k+s: every s-th scan, a faster
+drive or a slower sensor (04 at 13 m/s: 2.6 m a scan at s = 2, beyond the candidates' 2 m). Printed per sequence,
+resolution and stride: the mean / max translation error (m) of those first motions, how many were more than 0.1 m
+off ("wrong"), and of those how many line_odom flagged (registration failed or held: "flagged") instead of
+reporting them as registered motions.
 """
 from __future__ import annotations
 
@@ -34,22 +37,22 @@ def translation_error(delta: np.ndarray, truth: np.ndarray) -> float:
     return float(np.linalg.norm((np.linalg.inv(truth) @ delta)[:3, 3]))
 
 
-def first_motions(seq: str, level: int, kiss: bool, overrides: dict):
-    """Per frame pair: (line_odom error, flagged, KISS-ICP error or None)."""
+def first_motions(seq: str, level: int, kiss: bool, overrides: dict, stride: int = 1):
+    """Per frame pair k -> k + stride: (line_odom error, flagged, KISS-ICP error or None)."""
     data = kitti_sequence(seq)
     config = line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides})
     out = []
-    for k in range(len(data) - 1):
+    for k in range(len(data) - stride):
         odom = line_odom_core.Odometry(config)
         odom.register_points(data.xyz(k), float(data.times[k]))
-        result = odom.register_points(data.xyz(k + 1), float(data.times[k + 1]))
-        truth = np.linalg.inv(data.poses[k]) @ data.poses[k + 1]
+        result = odom.register_points(data.xyz(k + stride), float(data.times[k + stride]))
+        truth = np.linalg.inv(data.poses[k]) @ data.poses[k + stride]
         flagged = not result.stats["registered"] or result.stats["degenerate"]
         kiss_error = None
         if kiss:
             kiss_odom = kiss_odometry(100.0)
             poses = []
-            for i in (k, k + 1):
+            for i in (k, k + stride):
                 xyz = data.xyz(i)
                 pts = odom.downsampled_points(xyz) if level > 1 else xyz.astype(np.float64)
                 kiss_odom.register_frame(pts, np.zeros(len(pts)))
@@ -63,27 +66,29 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"], help="KITTI sequences")
     parser.add_argument("--levels", nargs="+", type=int, default=[1, 6, 8], help="downsampling steps")
+    parser.add_argument("--strides", nargs="+", type=int, default=[1], help="register scan k with scan k + s")
     parser.add_argument("--no-kiss", action="store_true", help="line_odom only")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="engine setting overrides (dotted names)")
     args = parser.parse_args(argv)
     overrides, kiss = overrides_and_kiss(parser, args)
+    if any(s < 1 for s in args.strides):
+        parser.error("--strides: expected integers >= 1")
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; KISS-ICP "
-          f"{'on' if kiss else 'off'}; a fresh start at every frame pair; wrong: > {WRONG} m off")
-    print(f"{'seq':4} {'res':5} {'n':>2} | {'line_odom mean/max t [m]':>24} {'wrong':>5} {'flagged':>7} | "
+          f"{'on' if kiss else 'off'}; a fresh start at every frame pair (step: of scans); wrong: > {WRONG} m off")
+    print(f"{'seq':4} {'res':5} {'step':>4} {'n':>2} | {'line_odom mean/max t [m]':>24} {'wrong':>5} {'flagged':>7} | "
           f"{'KISS-ICP mean/max t [m]':>23} {'wrong':>5}")
-    for level in args.levels:
-        for seq in args.kitti:
-            rows = first_motions(seq, level, kiss, overrides)
-            lo = np.array([r[0] for r in rows])
-            wrong = lo > WRONG
-            flagged = sum(1 for r, w in zip(rows, wrong) if w and r[1])
-            line = (f"{seq:4} {LEVELS.get(level, f'1/{level * level}'):5} {len(rows):2} | "
-                    f"{lo.mean():12.4f}/{lo.max():.4f} {int(wrong.sum()):5} {flagged:7} | ")
-            if kiss:
-                ks = np.array([r[2] for r in rows])
-                line += f"{ks.mean():11.4f}/{ks.max():.4f} {int((ks > WRONG).sum()):5}"
-            print(line, flush=True)
+    for level, stride, seq in ((lv, st, sq) for lv in args.levels for st in args.strides for sq in args.kitti):
+        rows = first_motions(seq, level, kiss, overrides, stride)
+        lo = np.array([r[0] for r in rows])
+        wrong = lo > WRONG
+        flagged = sum(1 for r, w in zip(rows, wrong) if w and r[1])
+        line = (f"{seq:4} {LEVELS.get(level, f'1/{level * level}'):5} {stride:4} {len(rows):2} | "
+                f"{lo.mean():12.4f}/{lo.max():.4f} {int(wrong.sum()):5} {flagged:7} | ")
+        if kiss:
+            ks = np.array([r[2] for r in rows])
+            line += f"{ks.mean():11.4f}/{ks.max():.4f} {int((ks > WRONG).sum()):5}"
+        print(line, flush=True)
     return 0
 
 
