@@ -580,7 +580,6 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     const double dt = stamp - prev_stamp_;
     const RigidTransform prediction = predict(stamp, &st.persistence);
     const RegistrationOptions& reg = config_.registration;
-    RigidTransform start = prediction;
     bool coarse_used = false;
     PassOutcome coarse;
     if (!have_velocity_ && !prev_coarse_features_.h_lines.empty() && !coarse_features.h_lines.empty()) {
@@ -592,19 +591,12 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       st.ms.candidates += coarse_stats.ms.candidates;
       st.ms.ransac += coarse_stats.ms.ransac;
       st.iterations += coarse_stats.iterations;
-      if (coarse.have && !coarse.stats.degenerate) {
-        start = coarse.best;
-        coarse_used = true;
-      }
+      coarse_used = coarse.have && !coarse.stats.degenerate;
     }
-    // No velocity yet, finer than registration.coarse_downsample: from the coarse motion (or standing still) and
-    // from other starts (first_motion).
-    const bool guessed = have_velocity_ || coarse_used;
-    const bool finer_than_coarse = coarse_step <= 0 || config_.downsample < coarse_step;
+    // No velocity yet: from the coarse motion (or standing still) and from other starts (first_motion).
     PassOutcome outcome =
-        !have_velocity_ && finer_than_coarse
-            ? first_motion(prev_features_, features, prediction, coarse_used ? &coarse.best : nullptr, &st)
-            : register_features(prev_features_, features, prediction, start, guessed, &st);
+        have_velocity_ ? register_features(prev_features_, features, prediction, prediction, true, &st)
+                       : first_motion(prev_features_, features, prediction, coarse_used ? &coarse.best : nullptr, &st);
     // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
     // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
     if (coarse_used && !(outcome.have && !outcome.stats.degenerate)) outcome = coarse;
