@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -25,6 +26,7 @@ constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer th
                                                       // are one
 constexpr double kWeakShiftStep = 8.0;  // inlier thresholds between the shifts of a first motion's scan (the
                                         // support peak of KITTI 04's forward motion: ~10 thresholds wide)
+constexpr double kSameAxisCosine = 0.999;  // a direction within 2.6 deg of a sensor axis is scanned with it
 constexpr double kMaxShiftSteps = 25.0;  // per side and axis, however small the inlier threshold
 constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (every k-th): the same peaks on KITTI
                                          // as all 3000, at a fifth of the cost (docs/RESULTS.md)
@@ -39,6 +41,31 @@ ScanFeatures every_kth_line(const ScanFeatures& features, std::size_t max_lines)
   for (std::size_t i = 0; i < features.h_lines.size(); i += k) out.h_lines.push_back(features.h_lines[i]);
   for (std::size_t i = 0; i < features.v_lines.size(); i += k) out.v_lines.push_back(features.v_lines[i]);
   return out;
+}
+
+// The horizontal direction (in the sensor's x-y plane) along which the scan's lines run most, by length in 1-degree
+// bins smoothed over three: a road's, whatever the sensor's mounting yaw. The ground's ring and radial lines run
+// every way and only raise the floor.
+Vec3 dominant_line_direction(const ScanFeatures& features) {
+  constexpr int kBins = 180;
+  std::array<double, kBins> length{};
+  for (const auto* lines : {&features.h_lines, &features.v_lines})
+    for (const LineFeature& line : *lines) {
+      const Vec3 d = line.segment.b - line.segment.a;
+      const double horizontal = std::hypot(d.x(), d.y());
+      if (!(horizontal > 2.0 * std::abs(d.z()))) continue;  // steeper than 27 degrees
+      double angle = std::atan2(d.y(), d.x());
+      if (angle < 0.0) angle += kPi;
+      length[std::min(kBins - 1, static_cast<int>(angle / kPi * kBins))] += horizontal;
+    }
+  int best = 0;
+  double best_length = -1.0;
+  for (int bin = 0; bin < kBins; ++bin) {
+    const double smoothed = length[(bin + kBins - 1) % kBins] + length[bin] + length[(bin + 1) % kBins];
+    if (smoothed > best_length) best_length = smoothed, best = bin;
+  }
+  const double angle = (best + 0.5) * kPi / kBins;
+  return Vec3(std::cos(angle), std::sin(angle), 0.0);
 }
 
 class Stopwatch {
@@ -446,8 +473,9 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
 }
 
 // The shifts of the estimate along its least observed translation (largest covariance eigenvalue), and of the
-// prediction along each sensor axis (vehicles move along one; a wrong sample's rotation would hide the right shift,
-// and where two directions are about as weak the eigenvector mixes them), every kWeakShiftStep inlier thresholds
+// prediction along each sensor axis and along the lines (vehicles move along a sensor axis or the road; a wrong
+// sample's rotation would hide the right shift, and where two directions are about as weak the eigenvector mixes
+// them), every kWeakShiftStep inlier thresholds
 // (at most kMaxShiftSteps per side) out to the largest motion the registration accepts
 // (registration.max_translation, at least the candidate distance). Each is scored on up to kScanLines of the scan's
 // lines and the candidates within a quarter of the candidate distance, with half a step of tolerance: true when
@@ -458,6 +486,9 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
   if (eigen.info() != Eigen::Success) return false;
   std::vector<std::pair<RigidTransform, Vec3>> scans{{outcome.best, eigen.eigenvectors().col(2)}};
   for (int axis = 0; axis < 3; ++axis) scans.emplace_back(prediction, Vec3::Unit(axis));
+  const Vec3 along_lines = dominant_line_direction(cur);
+  if (std::max(std::abs(along_lines.x()), std::abs(along_lines.y())) < kSameAxisCosine)
+    scans.emplace_back(prediction, along_lines);
   const ScanFeatures scored = every_kth_line(cur, kScanLines);
   const double threshold = config_.ransac.inlier_threshold;
   const double range = std::max(config_.candidates.max_distance, config_.registration.max_translation);
