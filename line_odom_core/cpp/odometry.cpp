@@ -436,21 +436,26 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
 // along the motion (a highway's ground, rails and kerbs) all meet, whatever the speed: a sample with the right
 // motion loses on them to the unmoved guess, or is never drawn (KITTI 04 at 13 m/s, docs/RESULTS.md). The coarse
 // search's motion, when it gave one, can be as wrong (KITTI 00 every third scan, 2.6 m a scan: 0.2 m back). So
-// the passes also run from the first pass's loser and from the best-supported shift (weak_translation_peak), and
-// the result kept is the one the candidates picked near each motion support most.
+// the passes also run from the first pass's loser and from the best-supported shift (weak_translation_peak), also
+// when the first pass failed (a street at 3 m a scan: ill-conditioned from standing still), and the result kept is
+// the one the candidates picked near each motion support most.
 PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures& cur,
                                    const RigidTransform& prediction, const RigidTransform* coarse_motion,
                                    FrameStats* st) const {
   const bool guessed = coarse_motion != nullptr;
-  PassOutcome outcome = register_features(prev, cur, prediction, guessed ? *coarse_motion : prediction, guessed, st);
-  if (!outcome.have || outcome.stats.degenerate || !outcome.stats.covariance.allFinite()) return outcome;
+  const RigidTransform& first_start = guessed ? *coarse_motion : prediction;
+  PassOutcome outcome = register_features(prev, cur, prediction, first_start, guessed, st);
+  const bool found = outcome.have && !outcome.stats.degenerate && outcome.stats.covariance.allFinite();
   Stopwatch scan;
   CandidateIndex index(prev);
-  double best_support = support(index, cur, outcome.best);
+  // Failed there, the first pass's start stands (the caller falls back to the coarse motion) unless out-supported.
+  const RigidTransform& reference = found ? outcome.best : first_start;
+  double best_support = found || guessed ? support(index, cur, reference) : -1.0;
   std::vector<RigidTransform> starts;
-  if (outcome.have_rival) starts.push_back(outcome.rival);
+  if (found && outcome.have_rival) starts.push_back(outcome.rival);
   RigidTransform peak;
-  if (weak_translation_peak(index, cur, outcome, prediction, &peak)) starts.push_back(peak);
+  if (weak_translation_peak(index, cur, reference, found ? &outcome.stats.covariance : nullptr, prediction, &peak))
+    starts.push_back(peak);
   st->ms.candidates += scan.ms();
   for (const RigidTransform& start : starts) {
     FrameStats other_stats;
@@ -472,19 +477,21 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
   return outcome;
 }
 
-// The shifts of the estimate along its least observed translation (largest covariance eigenvalue), and of the
-// prediction along each sensor axis and along the lines (vehicles move along a sensor axis or the road; a wrong
-// sample's rotation would hide the right shift, and where two directions are about as weak the eigenvector mixes
-// them), every kWeakShiftStep inlier thresholds
-// (at most kMaxShiftSteps per side) out to the largest motion the registration accepts
-// (registration.max_translation, at least the candidate distance). Each is scored on up to kScanLines of the scan's
-// lines and the candidates within a quarter of the candidate distance, with half a step of tolerance: true when
-// one out-supports the estimate itself.
-bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
-                                     const RigidTransform& prediction, RigidTransform* peak) const {
-  const Eigen::SelfAdjointEigenSolver<Mat3> eigen(outcome.stats.covariance.topLeftCorner<3, 3>());
-  if (eigen.info() != Eigen::Success) return false;
-  std::vector<std::pair<RigidTransform, Vec3>> scans{{outcome.best, eigen.eigenvectors().col(2)}};
+// The shifts of the estimate along its least observed translation (largest eigenvalue of its covariance, when it
+// has one), and of the prediction along each sensor axis and along the lines (vehicles move along a sensor axis or
+// the road; a wrong sample's rotation would hide the right shift, and where two directions are about as weak the
+// eigenvector mixes them), every kWeakShiftStep inlier thresholds (at most kMaxShiftSteps per side) out to the
+// largest motion the registration accepts (registration.max_translation, at least the candidate distance). Each is
+// scored on up to kScanLines of the scan's lines and the candidates within a quarter of the candidate distance, with
+// half a step of tolerance: true when one out-supports the estimate itself.
+bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+                                     const Mat6* covariance, const RigidTransform& prediction,
+                                     RigidTransform* peak) const {
+  std::vector<std::pair<RigidTransform, Vec3>> scans;
+  if (covariance) {
+    const Eigen::SelfAdjointEigenSolver<Mat3> eigen(covariance->topLeftCorner<3, 3>());
+    if (eigen.info() == Eigen::Success) scans.emplace_back(estimate, eigen.eigenvectors().col(2));
+  }
   for (int axis = 0; axis < 3; ++axis) scans.emplace_back(prediction, Vec3::Unit(axis));
   const Vec3 along_lines = dominant_line_direction(cur);
   if (std::max(std::abs(along_lines.x()), std::abs(along_lines.y())) < kSameAxisCosine)
@@ -496,7 +503,7 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
   const int steps = static_cast<int>(range / step + 1e-9);
   const double tolerance = 0.5 * step / threshold;
   const double reach = 0.25 * config_.candidates.max_distance;
-  double best = support(index, scored, outcome.best, tolerance, reach);
+  double best = support(index, scored, estimate, tolerance, reach);
   const double estimate_tolerant = best;
   Vec3 peak_axis = Vec3::Zero();
   for (const auto& [origin, axis] : scans) {

@@ -167,8 +167,8 @@ class Odometry {
   // (odometry.cpp); the result the candidates picked near it support most.
   PassOutcome first_motion(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                            const RigidTransform* coarse_motion, FrameStats* st) const;
-  bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const PassOutcome& outcome,
-                             const RigidTransform& prediction, RigidTransform* peak) const;
+  bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+                             const Mat6* covariance, const RigidTransform& prediction, RigidTransform* peak) const;
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
   // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
   double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
