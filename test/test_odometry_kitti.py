@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import line_odom_core
+from line_odom.bags import kitti_rings
 from line_odom.datasets import kitti_sequence
 from line_odom.metrics import motion_errors, nees, relative_pose_errors
 
@@ -330,8 +331,7 @@ def test_first_motion_found_with_the_sensor_mounted_at_a_yaw(yaw_deg, start):
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64"))
     for k in (start, start + 1):
         xyz = data.xyz(k)
-        azimuth = np.mod(np.arctan2(xyz[:, 1], xyz[:, 0]), 2 * np.pi)
-        ring = np.r_[0, np.cumsum(np.diff(azimuth) < -np.pi)].astype(np.int32)
+        ring = kitti_rings(xyz).astype(np.int32)
         result = odom.register_points((xyz @ turn[:3, :3]).astype(np.float32), float(data.times[k]), ring=ring)
     truth = turn.T @ np.linalg.inv(data.poses[start]) @ data.poses[start + 1] @ turn
     assert np.linalg.norm((np.linalg.inv(truth) @ result.delta)[:3, 3]) < 0.1, result.delta
