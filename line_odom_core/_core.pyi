@@ -111,6 +111,9 @@ class FrameResult:
                               from the lines; 6 the prediction held in full
       persistence: tuple      6 floats (x y z rx ry rz): the share of the last motion this frame's prediction
                               carried (registration.persistence_window; 1 = constant velocity)
+      prediction: str         where this frame's prediction came from: "constant_velocity", "guess" (the caller's
+                              motion guess), "standing_still" (no velocity yet, or constant_velocity off), "none"
+                              (first frame)
       failure: str            why, when degenerate ("" otherwise)
       ms: dict[str, float]    per-stage milliseconds: organize, downsample, features, candidates, ransac, total
     """
@@ -129,11 +132,14 @@ class Odometry:
     unknown names or wrong types raise ValueError. All register_* calls release the GIL."""
 
     def __init__(self, settings: dict[str, bool | int | float | str]) -> None: ...
+    # guess: (4, 4) T_prev_curr of the sensor from another source (wheel odometry, IMU), or None
     def register_points(self, xyz: npt.NDArray[np.floating], stamp: float,
-                        ring: npt.NDArray[np.int32] | None = None) -> FrameResult: ...  # xyz (N, k>=3)
-    def register_organized(self, xyz: npt.NDArray[np.floating], stamp: float) -> FrameResult: ...  # (H, W, k>=3)
+                        ring: npt.NDArray[np.int32] | None = None,
+                        guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # xyz (N, k>=3)
+    def register_organized(self, xyz: npt.NDArray[np.floating], stamp: float,
+                           guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # (H, W, k>=3)
     def register_depth(self, depth: npt.NDArray[np.float32], K: npt.NDArray[np.float64],
-                       stamp: float) -> FrameResult: ...
+                       stamp: float, guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...
     def downsampled_points(self, xyz: npt.NDArray[np.floating],
                            ring: npt.NDArray[np.int32] | None = None) -> npt.NDArray[np.float64]: ...
     def reset(self, pose: npt.NDArray[np.float64]) -> None: ...

@@ -69,6 +69,10 @@ def _pose(name: str, value: Any) -> np.ndarray:
     return T
 
 
+def _guess(value: Any) -> np.ndarray | None:
+    return None if value is None else _pose("guess", value)
+
+
 class Odometry:
     """Frame-to-frame line-intersection odometry (paper §6.3) with a constant-velocity motion model.
 
@@ -87,9 +91,15 @@ class Odometry:
         self._last_stamp: float | None = None
 
     # ---- registration ----
-    def register_points(self, xyz: np.ndarray, stamp: float, *, ring: np.ndarray | None = None) -> FrameResult:
+    def register_points(self, xyz: np.ndarray, stamp: float, *, ring: np.ndarray | None = None,
+                        guess: np.ndarray | None = None) -> FrameResult:
         """Unorganized points (N, 3) in metres (NaN/inf = dropped); `ring` (N,) integer beam index per point, or
-        None to organize by elevation with the configured sensor model."""
+        None to organize by elevation with the configured sensor model.
+
+        guess (every register_* method): the sensor's motion since the previous frame from another source (wheel
+        odometry, an IMU), T_prev_curr (4x4) in the sensor frame, or None. It replaces the constant-velocity
+        prediction: the registration starts from it, the motion prior is centred on it, and directions the scan
+        does not observe are held at it (stats["prediction"] == "guess"). Ignored on the first frame."""
         pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
         ring_arr = None
         if ring is not None:
@@ -98,14 +108,15 @@ class Odometry:
                 raise ValueError(f"ring: expected an integer array of shape ({pts.shape[0]},), got shape "
                                  f"{ring_arr.shape} and dtype {ring_arr.dtype}")
             ring_arr = np.ascontiguousarray(ring_arr, dtype=np.int32)
-        return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr))
+        return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr, _guess(guess)))
 
-    def register_organized(self, xyz: np.ndarray, stamp: float) -> FrameResult:
+    def register_organized(self, xyz: np.ndarray, stamp: float, *, guess: np.ndarray | None = None) -> FrameResult:
         """Organized points (H, W, 3): rows = rings or pixel rows; NaN/inf/zero points are holes."""
         pts = _float_array("xyz", xyz, 3, 3, "an (H, W, 3) organized point array")
-        return self._wrap(self._engine.register_organized(pts, _stamp(stamp)))
+        return self._wrap(self._engine.register_organized(pts, _stamp(stamp), _guess(guess)))
 
-    def register_depth(self, depth: np.ndarray, K: np.ndarray, stamp: float) -> FrameResult:
+    def register_depth(self, depth: np.ndarray, K: np.ndarray, stamp: float, *,
+                       guess: np.ndarray | None = None) -> FrameResult:
         """Depth image (H, W) in metres (0/NaN = no measurement) and pinhole intrinsics K (3, 3)."""
         d = _float_array("depth", depth, 2, None, "an (H, W) depth image in metres")
         K_arr = np.asarray(K, dtype=float)
@@ -113,7 +124,7 @@ class Odometry:
             raise ValueError(f"K: expected finite 3x3 intrinsics with fx, fy > 0, got {K_arr.tolist()}")
         with np.errstate(over="ignore"):  # depths beyond float32 become inf: holes, like any out-of-range depth
             d32 = np.ascontiguousarray(d, dtype=np.float32)
-        return self._wrap(self._engine.register_depth(d32, K_arr, _stamp(stamp)))
+        return self._wrap(self._engine.register_depth(d32, K_arr, _stamp(stamp), _guess(guess)))
 
     def reset(self, pose: np.ndarray | None = None) -> None:
         """Forget the previous scan and the velocity; the next frame gets `pose` (default identity)."""

@@ -31,6 +31,16 @@ constexpr double kMaxShiftSteps = 25.0;  // per side and axis, however small the
 constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (every k-th): the same peaks on KITTI
                                          // as all 3000, at a fifth of the cost (docs/RESULTS.md)
 
+// The caller's motion guess: finite, with an orthonormal rotation of determinant +1.
+void check_guess(const RigidTransform* guess) {
+  if (guess == nullptr) return;
+  const bool rigid = guess->is_finite() && (guess->R.transpose() * guess->R - Mat3::Identity()).cwiseAbs().maxCoeff() <
+                                               1e-6 && guess->R.determinant() > 0.0;
+  if (!rigid)
+    throw std::invalid_argument("guess: expected a finite rigid transform T_prev_curr (orthonormal rotation, "
+                                "determinant +1)");
+}
+
 // Every k-th line of each direction, k the smallest keeping at most max_lines in all; the planes as they are.
 ScanFeatures every_kth_line(const ScanFeatures& features, std::size_t max_lines) {
   const std::size_t lines = features.h_lines.size() + features.v_lines.size();
@@ -185,26 +195,31 @@ SensorModel make_sensor_model(const SensorOptions& options) {
 
 template <typename Scalar>
 FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std::size_t stride,
-                                      const std::int32_t* ring, double stamp) {
+                                      const std::int32_t* ring, double stamp, const RigidTransform* guess) {
+  check_guess(guess);
   Stopwatch watch;
-  const int step = organize_step(stamp);
+  const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
       organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
-  return register_range_image(image, stamp, watch.ms(), step);
+  return register_range_image(image, stamp, watch.ms(), step, guess);
 }
 
 template <typename Scalar>
-FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp) {
+FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
+                                         const RigidTransform* guess) {
+  check_guess(guess);
   Stopwatch watch;
   const RangeImage image = organize_cloud(data, rows, cols, stride, config_.sensor.limits);
-  return register_range_image(image, stamp, watch.ms());
+  return register_range_image(image, stamp, watch.ms(), 1, guess);
 }
 
-FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp) {
+FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
+                                     const RigidTransform* guess) {
+  check_guess(guess);
   Stopwatch watch;
-  const int step = organize_step(stamp);
+  const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image = organize_depth_downsampled(depth, rows, cols, K, config_.sensor.limits, step);
-  return register_range_image(image, stamp, watch.ms(), step);
+  return register_range_image(image, stamp, watch.ms(), step, guess);
 }
 
 template <typename Scalar>
@@ -218,10 +233,12 @@ std::vector<Vec3> Odometry::downsampled_points(const Scalar* data, std::size_t c
   return out;
 }
 
-template FrameResult Odometry::register_points(const float*, std::size_t, std::size_t, const std::int32_t*, double);
-template FrameResult Odometry::register_points(const double*, std::size_t, std::size_t, const std::int32_t*, double);
-template FrameResult Odometry::register_organized(const float*, int, int, std::size_t, double);
-template FrameResult Odometry::register_organized(const double*, int, int, std::size_t, double);
+template FrameResult Odometry::register_points(const float*, std::size_t, std::size_t, const std::int32_t*, double,
+                                               const RigidTransform*);
+template FrameResult Odometry::register_points(const double*, std::size_t, std::size_t, const std::int32_t*, double,
+                                               const RigidTransform*);
+template FrameResult Odometry::register_organized(const float*, int, int, std::size_t, double, const RigidTransform*);
+template FrameResult Odometry::register_organized(const double*, int, int, std::size_t, double, const RigidTransform*);
 template std::vector<Vec3> Odometry::downsampled_points(const float*, std::size_t, std::size_t,
                                                         const std::int32_t*) const;
 template std::vector<Vec3> Odometry::downsampled_points(const double*, std::size_t, std::size_t,
@@ -552,15 +569,18 @@ double Odometry::support(CandidateIndex& index, const ScanFeatures& cur, const R
 
 // Organize only the rows and columns downsampling keeps; while the first motion is searched at
 // registration.coarse_downsample, the rows and columns both steps need.
-int Odometry::organize_step(double stamp) const {
+int Odometry::organize_step(double stamp, bool guessed) const {
   const int step = std::max(1, config_.downsample);
   const int coarse = config_.registration.coarse_downsample;
-  const bool first_motion = !have_velocity_ || stamp - prev_stamp_ > config_.registration.max_prediction_gap;
+  // (the first frame's coarse features serve the next frame's first motion, guessed or not)
+  const bool first_motion = (!guessed || frames_ == 0) &&
+                            (!have_velocity_ || stamp - prev_stamp_ > config_.registration.max_prediction_gap);
   return first_motion && coarse > 0 && coarse != step ? std::gcd(step, coarse) : step;
 }
 
 FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms,
-                                           int organized_step) {
+                                           int organized_step, const RigidTransform* guess) {
+  check_guess(guess);
   Stopwatch total;
   FrameResult result;
   result.stamp = stamp;
@@ -572,6 +592,9 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     last_delta_ = RigidTransform::identity();
     persistence_.interrupt();
   }
+  // A guess stands for the velocity: registered from it, fused with it, degenerate directions held at it.
+  const bool guessed = guess != nullptr && frames_ > 0;
+  if (guessed) have_velocity_ = true;
 
   Stopwatch stage;
   RangeImage sparse;
@@ -616,7 +639,10 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     st.registered = true;
   } else {
     const double dt = stamp - prev_stamp_;
-    const RigidTransform prediction = predict(stamp, &st.persistence);
+    const RigidTransform prediction = guessed ? *guess : predict(stamp, &st.persistence);
+    st.prediction = guessed ? "guess"
+                    : have_velocity_ && config_.registration.constant_velocity ? "constant_velocity"
+                                                                                : "standing_still";
     const RegistrationOptions& reg = config_.registration;
     bool coarse_used = false;
     PassOutcome coarse;
