@@ -68,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3", help="storage of --out-bag")
     p.add_argument("--topic", default=None, help="input topic (default: the bag's only PointCloud2 or Image topic)")
     p.add_argument("--frames", type=_positive_int, default=None, help="replay only the first N frames")
+    p.add_argument("--guess-topic", default=None, metavar="TOPIC",
+                   help="a nav_msgs/Odometry topic of the bag (wheel odometry) as the node's motion guess "
+                        "(guess.enabled; in-process replay)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no table")
 
     p = sub.add_parser("eval", help="metrics of an estimated trajectory against ground truth (TUM or KITTI files)")
@@ -156,7 +159,7 @@ def cmd_replay(args) -> int:
     result = replay.replay_bag(args.bag, args.out, params=args.params, overrides=parse_overrides(args.overrides),
                                realtime=args.realtime, rate=args.rate,
                                out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
-                               frames=args.frames, progress=not args.quiet)
+                               frames=args.frames, progress=not args.quiet, guess_topic=args.guess_topic)
     if not args.quiet:
         print(evaluation.format_table(result.metrics, f"replay {args.bag}"))
         print(f"wrote {', '.join(str(p) for p in result.files)}")

@@ -135,6 +135,12 @@ class LineOdomNode(Node):
             self.create_subscription(Image, "depth/image", self._on_message, input_qos)
             self.create_subscription(CameraInfo, "depth/camera_info", self._on_camera_info, input_qos)
             inputs = [self.resolve_topic_name("depth/image"), self.resolve_topic_name("depth/camera_info")]
+        if s.guess_enabled:
+            # best effort matches reliable and best-effort publishers; a lost pose only widens an interpolation
+            guess_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+                                   reliability=qos_profile_sensor_data.reliability)
+            self.create_subscription(Odometry, "guess_odom", self.processor.add_guess, guess_qos)
+            inputs.append(self.resolve_topic_name("guess_odom") + " (motion guess)")
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_timer(s.diagnostics_period, self._publish_diagnostics)
         self._last_path_stamp: float | None = None

@@ -18,6 +18,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from line_odom import convert, frames
+from line_odom.motion_guess import MotionGuess
 from line_odom_core.config import Config, config_schema, load_config
 
 INPUTS = ("pointcloud", "depth")
@@ -59,6 +60,13 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("max_points", int, 2_000_000, "reject clouds with more points than this (0 = no limit)", 0,
                   1_000_000_000),
     NodeParameter("diagnostics.period", float, 1.0, "seconds between /diagnostics messages", 0.05, 3600.0),
+    NodeParameter("guess.enabled", bool, False, "register each scan from the base's motion reported by another "
+                  "odometry source on topic 'guess_odom' (nav_msgs/Odometry, child_frame_id = base_frame: wheel "
+                  "odometry, an IMU filter) instead of the constant-velocity prediction"),
+    NodeParameter("guess.tolerance", float, 0.1, "seconds a scan's stamp may lie past the newest guess_odom pose "
+                  "(extrapolated); a scan outside the poses is registered with the constant-velocity prediction "
+                  "and counted (frames_unguessed)", 0.0, 10.0),
+    NodeParameter("guess.window", float, 5.0, "seconds of guess_odom poses kept", 0.1, 86400.0),
 )
 NODE_PARAMETER_NAMES = {p.name for p in NODE_PARAMETERS}
 IGNORED_KEYS = {"use_sim_time", "preset"}
@@ -120,6 +128,9 @@ class NodeSettings:
     qos_depth: int = 5
     max_points: int = 2_000_000
     diagnostics_period: float = 1.0
+    guess_enabled: bool = False
+    guess_tolerance: float = 0.1
+    guess_window: float = 5.0
 
     @staticmethod
     def attribute(name: str) -> str:
@@ -198,10 +209,15 @@ class OdometryProcessor:
         self.T_init = frames.pose_from_params(self.settings.initial_pose, "initial_pose")
         self._frame_lock = threading.RLock()
         self._count_lock = threading.Lock()
+        self._guess_lock = threading.Lock()
         self._K: np.ndarray | None = None
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
             frames_duplicate=0, resets=0)
+        self.guess = (MotionGuess(self.settings.base_frame, tolerance=self.settings.guess_tolerance,
+                                  window=self.settings.guess_window) if self.settings.guess_enabled else None)
+        if self.guess is not None:
+            self.counters.update(frames_guessed=0, frames_unguessed=0, guess_rejected=0)
         self.last_error: str | None = None
         self._last_logged: tuple[str, float] = ("", 0.0)
         self._suppressed = 0
@@ -232,6 +248,7 @@ class OdometryProcessor:
         self._T_prev: np.ndarray | None = None
         self._cov_left = np.eye(6) * FIRST_POSE_VARIANCE
         self._path_poses: collections.deque = collections.deque(maxlen=self.settings.path_max_poses)
+        self._guess_prev: np.ndarray | None = None  # the guess source's T_source_base at the previous frame
 
     def reset(self, reason: str = "reset requested") -> None:
         """Forget the trajectory: the next frame is at ``initial_pose`` again."""
@@ -252,7 +269,7 @@ class OdometryProcessor:
         with self._count_lock:
             self.counters["frames_dropped"] += n
 
-    def _reject(self, kind: str, reason: str) -> None:
+    def _reject(self, kind: str, reason: str, what: str = "dropped frame") -> None:
         now = time.monotonic()
         with self._count_lock:
             self.counters[kind] += 1
@@ -266,13 +283,40 @@ class OdometryProcessor:
                 self._suppressed += 1
         if not repeat:
             more = f" (and {suppressed} more rejected frames since the last message)" if suppressed else ""
-            self._warn(f"dropped frame: {reason}{more}")
+            self._warn(f"{what}: {reason}{more}")
 
     def note_failure(self, reason: str) -> None:
         """A frame that failed for a reason outside the processor (counted as failed)."""
         self._reject("frames_failed", reason)
 
     # ------------------------------------------------------------------ inputs
+    def add_guess(self, msg) -> bool:
+        """One nav_msgs/Odometry of the guess source (guess.enabled); an unusable one is logged and counted
+        (guess_rejected)."""
+        if self.guess is None:
+            return False
+        try:
+            with self._guess_lock:  # (not the frame lock: the executor must not wait for a registration)
+                if not self.guess.add(msg):
+                    self._info("guess_odom stamp went backwards: its earlier poses are forgotten")
+        except convert.ConversionError as err:
+            self._reject("guess_rejected", str(err), "rejected guess_odom message")
+            return False
+        return True
+
+    def _guess_delta(self, stamp_ns: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(the sensor's motion since the previous frame by the guess source (T_prev_curr) or None, the source's
+        T_source_base at this frame or None)."""
+        if self.guess is None:
+            return None, None
+        with self._guess_lock:
+            T = self.guess.pose_at(stamp_ns)
+        if self._last_stamp_ns is None:  # first frame: nothing to move from
+            return None, T
+        if T is None or self._guess_prev is None:
+            return None, T
+        return self.T_sensor_base @ (frames.inverse(self._guess_prev) @ T) @ self.T_base_sensor, T
+
     @property
     def has_camera_info(self) -> bool:
         return self._K is not None
@@ -306,9 +350,10 @@ class OdometryProcessor:
             self._reject("frames_malformed", str(err))
             return None
         if cloud.organized:
-            run = lambda stamp: self.engine.register_organized(cloud.xyz, stamp)  # noqa: E731
+            run = lambda stamp, **guess: self.engine.register_organized(cloud.xyz, stamp, **guess)  # noqa: E731
         else:
-            run = lambda stamp: self.engine.register_points(cloud.xyz, stamp, ring=cloud.ring)  # noqa: E731
+            run = lambda stamp, **guess: self.engine.register_points(  # noqa: E731
+                cloud.xyz, stamp, ring=cloud.ring, **guess)
         return self._register(run, convert.stamp_to_ns(msg.header.stamp), cloud.frame_id, t0, receive_time)
 
     def process_depth(self, image, camera_info=None, receive_time: float | None = None) -> FrameOutput | None:
@@ -325,7 +370,8 @@ class OdometryProcessor:
         if K is None:
             self._reject("frames_dropped", "no valid CameraInfo received yet for the depth image")
             return None
-        return self._register(lambda s: self.engine.register_depth(depth, K, s), convert.stamp_to_ns(image.header.stamp),
+        return self._register(lambda s, **guess: self.engine.register_depth(depth, K, s, **guess),
+                              convert.stamp_to_ns(image.header.stamp),
                               str(image.header.frame_id), t0, receive_time)
 
     # ------------------------------------------------------------------ core
@@ -345,8 +391,11 @@ class OdometryProcessor:
                 self._clear_state()
                 with self._count_lock:
                     self.counters["resets"] += 1
+            first = self._last_stamp_ns is None
+            guess, guess_pose = self._guess_delta(stamp_ns)
             try:
-                result = run(stamp)
+                # (the guess keyword only when there is one: engines without it keep working)
+                result = run(stamp) if guess is None else run(stamp, guess=guess)
             except ValueError as err:
                 self._reject("frames_failed", f"registration rejected the frame: {err}")
                 return None
@@ -357,6 +406,11 @@ class OdometryProcessor:
                 return None
             out = self._outputs(stamp_ns, frame_id, pose, delta, cov, dict(result.stats))
             out.reset_reason = reset_reason
+            if self.guess is not None:
+                self._guess_prev = guess_pose
+                if not first:
+                    with self._count_lock:
+                        self.counters["frames_guessed" if guess is not None else "frames_unguessed"] += 1
         end = time.perf_counter()
         out.latency_ms = 1e3 * ((time.monotonic() - receive_time) if receive_time is not None else (end - t0))
         with self._count_lock:
@@ -449,12 +503,15 @@ class OdometryProcessor:
         if len(receive) >= 2 and receive[-1] > receive[0]:
             rate = (len(receive) - 1) / (receive[-1] - receive[0])
         values: dict[str, Any] = {**counters, "input_rate_hz": rate}
+        if self.guess is not None:
+            with self._guess_lock:
+                values["guess_poses"] = len(self.guess)  # kept from guess_odom (guess.window)
         if lat.size:
             values.update(latency_ms_last=lat[-1], latency_ms_mean=float(lat.mean()),
                           latency_ms_p95=float(np.percentile(lat, 95)))
         for key in (
                 "solver", "inliers", "degenerate", "held_directions", "candidates", "h_lines", "v_lines",
-                "registered_lines", "planes"):
+                "registered_lines", "planes", "prediction"):
             if key in stats:
                 values[key] = stats[key]
         if "persistence" in stats:  # the share of the last motion the prediction carried, x y z rx ry rz
@@ -482,11 +539,13 @@ class OdometryProcessor:
             problems.append("degenerate geometry: pose held by the motion model, covariance inflated" if held >= 6 else
                             f"degenerate geometry: {held} of 6 motion directions held by the motion model, "
                             "covariance inflated along them")
-        for key, text in (("frames_malformed", "malformed"), ("frames_failed", "failed"),
-                          ("frames_dropped", "dropped (processing behind or no CameraInfo)"),
-                          ("frames_duplicate", "with a repeated stamp")):
+        for key, text in (("frames_malformed", "frame(s) malformed"), ("frames_failed", "frame(s) failed"),
+                          ("frames_dropped", "frame(s) dropped (processing behind or no CameraInfo)"),
+                          ("frames_duplicate", "frame(s) with a repeated stamp"),
+                          ("frames_unguessed", "frame(s) without a guess_odom pose (constant-velocity prediction)"),
+                          ("guess_rejected", "guess_odom message(s) rejected")):
             if since.get(key):
-                problems.append(f"{since[key]} frame(s) {text}")
+                problems.append(f"{since[key]} {text}")
         if values["frames_processed"] == 0:
             status.level = DiagnosticStatus.WARN
             status.message = "waiting for input" if values["frames_received"] == 0 else "no frame processed yet"

@@ -99,19 +99,24 @@ def _rclpy_types(kind: str):
 
 
 def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frames: int | None = None,
-                   progress: ProgressBar | None = None) -> ReplayRun:
-    """Every frame of the input topic through the processor, in bag order."""
+                   progress: ProgressBar | None = None, guess_topic: str | None = None) -> ReplayRun:
+    """Every frame of the input topic through the processor, in bag order (with the nav_msgs/Odometry messages of
+    guess_topic as the motion guess, guess.enabled)."""
+    from nav_msgs.msg import Odometry
     from rclpy.serialization import deserialize_message
 
     types = _rclpy_types(inp.kind)
     total = reader.counts.get(inp.topic, 0)
     if frames is not None:
         total = min(total, frames)
-    topics = [inp.topic] + ([inp.info_topic] if inp.info_topic else [])
+    topics = [inp.topic] + ([inp.info_topic] if inp.info_topic else []) + ([guess_topic] if guess_topic else [])
     if inp.info_topic:  # the intrinsics before the first image, whatever the order in the bag
         for message in reader.messages([inp.info_topic]):
             processor.set_camera_info(deserialize_message(message.raw, types["info"]))
             break
+    if guess_topic:  # offline, every pose of the guess source is known: each frame's is interpolated, never
+        for message in reader.messages([guess_topic]):  # extrapolated (guess.window: replay_bag keeps them all)
+            processor.add_guess(deserialize_message(message.raw, Odometry))
     stamps, poses, odom_msgs, latencies = [], [], [], []
     n_in = 0
     for message in reader.messages(topics):
@@ -120,6 +125,8 @@ def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frame
         try:
             if message.topic == inp.info_topic:
                 processor.set_camera_info(deserialize_message(message.raw, types["info"]))
+                continue
+            if message.topic == guess_topic:  # (all read before the first frame, below)
                 continue
             msg = deserialize_message(message.raw, types[inp.kind])
         except Exception as exc:  # rclpy raises its own error types for bad CDR
@@ -184,12 +191,23 @@ def write_results(out_dir: str | Path, run: ReplayRun, ground_truth: evaluation.
 def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = None,
                overrides: Mapping[str, Any] | None = None, realtime: bool = False, out_bag: str | Path | None = None,
                out_bag_storage: str = "sqlite3", topic: str | None = None, frames: int | None = None,
-               progress: bool = True, title: str | None = None, rate: float = 1.0) -> ReplayResult:
-    """Replay `bag` through the node and write the results to `out_dir` (see the module docstring)."""
+               progress: bool = True, title: str | None = None, rate: float = 1.0,
+               guess_topic: str | None = None) -> ReplayResult:
+    """Replay `bag` through the node and write the results to `out_dir` (see the module docstring). guess_topic: a
+    nav_msgs/Odometry topic of the bag (wheel odometry) given to the node as its motion guess (guess.enabled)."""
     if params is not None and not Path(params).is_file():
         raise FileNotFoundError(f"{params}: no such parameter file")
+    if guess_topic is not None and realtime:
+        raise ValueError("guess_topic: replayed in-process only; with realtime, publish it yourself and run the node "
+                         "with guess.enabled and guess_odom remapped to it")
     with bags.BagReader(bag) as reader:
         inp = select_input(reader, topic)
+        if guess_topic is not None:
+            if reader.topics.get(guess_topic) != bags.ODOMETRY:
+                found = reader.topics.get(guess_topic)
+                raise ValueError(f"{reader.path}: guess topic {guess_topic} is "
+                                 f"{found + ', expected ' + bags.ODOMETRY if found else 'not in the bag'}")
+            overrides = {"guess.window": 86400.0, **(overrides or {}), "guess.enabled": True}
         gt_data = bags.read_ground_truth(reader)
         ground_truth = evaluation.Trajectory(gt_data[1], gt_data[0]) if gt_data is not None else None
         label = f"replay {Path(bag).name}"
@@ -201,7 +219,7 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                                                    progress=bar, rate=rate)
             else:
                 processor = make_processor(inp.kind, params, overrides)
-                run = run_in_process(reader, inp, processor, frames=frames, progress=bar)
+                run = run_in_process(reader, inp, processor, frames=frames, progress=bar, guess_topic=guess_topic)
         if len(run.estimate) == 0:
             raise RuntimeError(f"{bag}: the node produced no pose from {run.frames_in} frame(s) on {inp.topic} "
                                f"(counters: {run.counters})")
