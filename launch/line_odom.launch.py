@@ -3,6 +3,8 @@
     ros2 launch line_odom line_odom.launch.py preset:=kitti_hdl64 points:=/kitti/points use_sim_time:=true
     ros2 launch line_odom line_odom.launch.py preset:=tum_kinect depth_image:=/camera/depth/image \
         camera_info:=/camera/depth/camera_info rviz:=true
+    ros2 launch line_odom line_odom.launch.py params_file:=my_robot.yaml guess_odom:=/wheel/odometry
+        (my_robot.yaml with guess: enabled: true - docs/NODE.md, "Motion guess")
 
 The node also gets the shipped Fast DDS large-message profile (config/fastdds_large_messages.xml) unless
 fastdds_profile:=<other file> is given; export the same profile for the driver (see docs/NODE.md).
@@ -41,6 +43,9 @@ def generate_launch_description():
         DeclareLaunchArgument("points", default_value="points", description="PointCloud2 input topic"),
         DeclareLaunchArgument("depth_image", default_value="depth/image", description="depth Image topic"),
         DeclareLaunchArgument("camera_info", default_value="depth/camera_info", description="CameraInfo topic"),
+        DeclareLaunchArgument("guess_odom", default_value="guess_odom",
+                              description="nav_msgs/Odometry motion guess (wheel odometry) topic, read with "
+                                          "guess.enabled: true in the parameter file"),
         DeclareLaunchArgument("odom", default_value="odom", description="Odometry output topic"),
         DeclareLaunchArgument("path", default_value="path", description="Path output topic"),
         DeclareLaunchArgument("fastdds_profile", default_value=_share("config", "fastdds_large_messages.xml"),
@@ -63,6 +68,7 @@ def generate_launch_description():
             ("points", LaunchConfiguration("points")),
             ("depth/image", LaunchConfiguration("depth_image")),
             ("depth/camera_info", LaunchConfiguration("camera_info")),
+            ("guess_odom", LaunchConfiguration("guess_odom")),
             ("odom", LaunchConfiguration("odom")),
             ("path", LaunchConfiguration("path")),
         ],

@@ -70,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_positive_int, default=None, help="replay only the first N frames")
     p.add_argument("--guess-topic", default=None, metavar="TOPIC",
                    help="a nav_msgs/Odometry topic of the bag (wheel odometry) as the node's motion guess "
-                        "(guess.enabled; in-process replay)")
+                        "(guess.enabled)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no table")
 
     p = sub.add_parser("eval", help="metrics of an estimated trajectory against ground truth (TUM or KITTI files)")

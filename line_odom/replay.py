@@ -197,9 +197,6 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
     nav_msgs/Odometry topic of the bag (wheel odometry) given to the node as its motion guess (guess.enabled)."""
     if params is not None and not Path(params).is_file():
         raise FileNotFoundError(f"{params}: no such parameter file")
-    if guess_topic is not None and realtime:
-        raise ValueError("guess_topic: replayed in-process only; with realtime, publish it yourself and run the node "
-                         "with guess.enabled and guess_odom remapped to it")
     with bags.BagReader(bag) as reader:
         inp = select_input(reader, topic)
         if guess_topic is not None:
@@ -207,7 +204,8 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                 found = reader.topics.get(guess_topic)
                 raise ValueError(f"{reader.path}: guess topic {guess_topic} is "
                                  f"{found + ', expected ' + bags.ODOMETRY if found else 'not in the bag'}")
-            overrides = {"guess.window": 86400.0, **(overrides or {}), "guess.enabled": True}
+            # (in-process every pose is read before the first frame and kept; in real time they arrive as published)
+            overrides = {**({} if realtime else {"guess.window": 86400.0}), **(overrides or {}), "guess.enabled": True}
         gt_data = bags.read_ground_truth(reader)
         ground_truth = evaluation.Trajectory(gt_data[1], gt_data[0]) if gt_data is not None else None
         label = f"replay {Path(bag).name}"
@@ -216,7 +214,7 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                 from line_odom import replay_realtime
 
                 run = replay_realtime.run_realtime(reader, inp, params=params, overrides=overrides, frames=frames,
-                                                   progress=bar, rate=rate)
+                                                   progress=bar, rate=rate, guess_topic=guess_topic)
             else:
                 processor = make_processor(inp.kind, params, overrides)
                 run = run_in_process(reader, inp, processor, frames=frames, progress=bar, guess_topic=guess_topic)

@@ -45,7 +45,7 @@ def _ros_value(value: Any) -> str:
     return str(value)
 
 
-def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any]) -> list[str]:
+def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any], guess_topic: str | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "line_odom.node", "--ros-args", "-p", f"preset:={preset_or_params}",
            "-p", "use_sim_time:=true", "-p", f"input:={inp.kind}", "-p", "publish_tf:=false"]
     for name, value in overrides.items():
@@ -54,6 +54,8 @@ def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any]) -> li
         cmd += ["-r", f"points:={inp.topic}"]
     else:
         cmd += ["-r", f"depth/image:={inp.topic}", "-r", f"depth/camera_info:={inp.info_topic}"]
+    if guess_topic:
+        cmd += ["-r", f"guess_odom:={guess_topic}"]
     cmd += ["-r", f"odom:={NODE_OUTPUT_TOPIC}"]
     return cmd
 
@@ -138,8 +140,9 @@ def _tail(path: Path, lines: int = 5) -> str:
 
 def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
                  overrides: Mapping[str, Any] | None = None, frames: int | None = None, progress=None,
-                 rate: float = 1.0):
-    """Publish the bag at `rate` x its own pace (like `ros2 bag play --rate`) to the node in its own process."""
+                 rate: float = 1.0, guess_topic: str | None = None):
+    """Publish the bag at `rate` x its own pace (like `ros2 bag play --rate`) to the node in its own process
+    (guess_topic: a nav_msgs/Odometry topic published with it, the node's guess_odom)."""
     if not (rate > 0.0 and rate < float("inf")):
         raise ValueError(f"rate: expected a positive factor, got {rate}")
     import rclpy
@@ -166,7 +169,7 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         total = min(total, frames)
     log_file = Path(tempfile.mkstemp(prefix="line_odom_node_", suffix=".log")[1])
     with open(log_file, "wb") as log:
-        proc = subprocess.Popen(node_command(inp, preset, overrides), env=env, stdout=log, stderr=subprocess.STDOUT,
+        proc = subprocess.Popen(node_command(inp, preset, overrides, guess_topic), env=env, stdout=log, stderr=subprocess.STDOUT,
                                 preexec_fn=die_with_parent)
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -184,13 +187,16 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     clock_pub = node.create_publisher(Clock, "/clock", 10)
     data_pub = node.create_publisher(PointCloud2 if inp.kind == "pointcloud" else Image, inp.topic, reliable)
     info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
+    guess_pub = node.create_publisher(Odometry, guess_topic, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)) \
+        if guess_topic else None
     sub = node.create_subscription(Odometry, NODE_OUTPUT_TOPIC, on_odom, QoSProfile(depth=1000))
     executor.add_node(node)
     stop_spinning = spin_in_background(executor)
     published: dict[int, float] = {}
     try:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while data_pub.get_subscription_count() < 1 or sub.get_publisher_count() < 1:
+        while (data_pub.get_subscription_count() < 1 or sub.get_publisher_count() < 1
+               or (guess_pub is not None and guess_pub.get_subscription_count() < 1)):
             if proc.poll() is not None:
                 raise RuntimeError(f"the node exited with code {proc.returncode} before subscribing: "
                                    f"{_tail(log_file)}")
@@ -201,7 +207,8 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         time.sleep(0.5)  # let discovery settle in both directions
         wall0 = bag0 = None
         n_in = 0
-        for message in reader.messages([inp.topic] + ([inp.info_topic] if inp.info_topic else [])):
+        for message in reader.messages([inp.topic] + ([inp.info_topic] if inp.info_topic else [])
+                                       + ([guess_topic] if guess_topic else [])):
             if n_in >= total:
                 break
             if wall0 is None:
@@ -216,6 +223,9 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
             clock_pub.publish(clock)
             if message.topic == inp.info_topic:
                 info_pub.publish(message.raw)
+                continue
+            if message.topic == guess_topic:
+                guess_pub.publish(message.raw)
                 continue
             published[header_stamp_ns(message.raw)] = time.monotonic()
             data_pub.publish(message.raw)
