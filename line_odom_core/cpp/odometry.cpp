@@ -53,18 +53,40 @@ ScanFeatures every_kth_line(const ScanFeatures& features, std::size_t max_lines)
   return out;
 }
 
-// The horizontal direction (in the sensor's x-y plane) along which the scan's lines run most, by length in 1-degree
-// bins smoothed over three: a road's, whatever the sensor's mounting yaw. The ground's ring and radial lines run
-// every way and only raise the floor.
+// The up direction of the scan: the normal of its best-supported plane within 45 degrees of the sensor's z axis
+// (the ground of a LiDAR mounted upright or tilted), else the z axis.
+Vec3 ground_up(const ScanFeatures& features) {
+  Vec3 up = Vec3::UnitZ();
+  int best = 0;
+  for (const PlaneFeature& plane : features.planes) {
+    const Vec3 n = plane.plane.n.normalized();
+    if (plane.support > best && std::abs(n.z()) > std::sqrt(0.5)) {
+      best = plane.support;
+      up = n.z() > 0.0 ? n : Vec3(-n);
+    }
+  }
+  return up;
+}
+
+// The horizontal direction (in the plane of ground_up) along which the scan's lines run most, by length in 1-degree
+// bins smoothed over three: a road's, whatever the sensor's mounting yaw or tilt. The ground's ring and radial lines
+// run every way and only raise the floor.
 Vec3 dominant_line_direction(const ScanFeatures& features) {
   constexpr int kBins = 180;
+  const Vec3 up = ground_up(features);
+  // a basis of the ground's plane: the sensor's x axis projected onto it, and up x that
+  Vec3 e1 = Vec3::UnitX() - up.x() * up;
+  if (!(e1.norm() > 1e-6)) e1 = Vec3::UnitY() - up.y() * up;
+  e1.normalize();
+  const Vec3 e2 = up.cross(e1);
   std::array<double, kBins> length{};
   for (const auto* lines : {&features.h_lines, &features.v_lines})
     for (const LineFeature& line : *lines) {
       const Vec3 d = line.segment.b - line.segment.a;
-      const double horizontal = std::hypot(d.x(), d.y());
-      if (!(horizontal > 2.0 * std::abs(d.z()))) continue;  // steeper than 27 degrees
-      double angle = std::atan2(d.y(), d.x());
+      const double u = d.dot(e1), v = d.dot(e2);
+      const double horizontal = std::hypot(u, v);
+      if (!(horizontal > 2.0 * std::abs(d.dot(up)))) continue;  // steeper than 27 degrees
+      double angle = std::atan2(v, u);
       if (angle < 0.0) angle += kPi;
       length[std::min(kBins - 1, static_cast<int>(angle / kPi * kBins))] += horizontal;
     }
@@ -75,7 +97,7 @@ Vec3 dominant_line_direction(const ScanFeatures& features) {
     if (smoothed > best_length) best_length = smoothed, best = bin;
   }
   const double angle = (best + 0.5) * kPi / kBins;
-  return Vec3(std::cos(angle), std::sin(angle), 0.0);
+  return std::cos(angle) * e1 + std::sin(angle) * e2;
 }
 
 class Stopwatch {
@@ -510,9 +532,15 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
     if (eigen.info() == Eigen::Success) scans.emplace_back(estimate, eigen.eigenvectors().col(2));
   }
   for (int axis = 0; axis < 3; ++axis) scans.emplace_back(prediction, Vec3::Unit(axis));
+  // Also along the sensor's x axis laid onto the ground (a sensor tilted forward or back) and along the lines.
+  const Vec3 up = ground_up(cur);
+  const Vec3 level_x = (Vec3::UnitX() - up.x() * up).normalized();
   const Vec3 along_lines = dominant_line_direction(cur);
-  if (std::max(std::abs(along_lines.x()), std::abs(along_lines.y())) < kSameAxisCosine)
-    scans.emplace_back(prediction, along_lines);
+  for (const Vec3& direction : {level_x, along_lines}) {
+    bool scanned = direction.cwiseAbs().maxCoeff() >= kSameAxisCosine;
+    for (const auto& scan : scans) scanned = scanned || std::abs(scan.second.dot(direction)) >= kSameAxisCosine;
+    if (!scanned) scans.emplace_back(prediction, direction);
+  }
   const ScanFeatures scored = every_kth_line(cur, kScanLines);
   const double threshold = config_.ransac.inlier_threshold;
   const double range = std::max(config_.candidates.max_distance, config_.registration.max_translation);
