@@ -315,7 +315,18 @@ class OdometryProcessor:
             return None, T
         if T is None or self._guess_prev is None:
             return None, T
-        return self.T_sensor_base @ (frames.inverse(self._guess_prev) @ T) @ self.T_base_sensor, T
+        delta = self.T_sensor_base @ (frames.inverse(self._guess_prev) @ T) @ self.T_base_sensor
+        # A jump the registration could not follow (a source reset to its origin, a glitch) is no guess: held, it
+        # would move the pose by it.
+        moved = float(np.linalg.norm(delta[:3, 3]))
+        turned = math.degrees(float(np.linalg.norm(frames.rotation_vector(delta[:3, :3]))))
+        max_t, max_r = self.config["registration.max_translation"], self.config["registration.max_rotation_deg"]
+        if moved > max_t or turned > max_r:
+            self._reject("guess_rejected", f"guess_odom moved the sensor {moved:.2f} m and {turned:.1f} deg between "
+                                           f"two scans, beyond registration.max_translation {max_t:g} m / "
+                                           f"registration.max_rotation_deg {max_r:g} deg", "ignored motion guess")
+            return None, T
+        return delta, T
 
     @property
     def has_camera_info(self) -> bool:

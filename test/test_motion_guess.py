@@ -258,3 +258,24 @@ def test_depth_images_take_the_guess_too():
     t, rot = relative_pose_errors(np.array(poses), np.linalg.inv(data.poses[0]) @ np.array(data.poses))
     assert sources[0] == "none" and set(sources[1:]) == {"guess"}
     assert t.mean() < 0.006 and rot.mean() < 0.6, (t.mean(), rot.mean())
+
+
+def test_a_guess_source_that_jumps_is_not_followed():
+    # A wheel odometry reset to its origin mid-run (its stamps still going forward): the motion between two scans by
+    # it is -10 m, beyond registration.max_translation (5 m). Held, that guess would move the pose by it; the scan is
+    # registered with the constant-velocity prediction instead, and the jump is counted and logged.
+    config = load_config("kitti_hdl64")
+    settings = NodeSettings.from_mapping({**config.extra, "guess.enabled": True})
+    engine = RecordingEngine()
+    proc = OdometryProcessor(config, settings, engine=engine)
+    positions = [0.0, 1.0, 2.0, -8.0, -7.0]  # the source jumps back by 10 m between the 3rd and 4th scan
+    for k, x in enumerate(positions):
+        proc.add_guess(_odom_msg(k * 100_000_000, _T([x, 0.0, 0.0])))
+        proc.process_pointcloud(convert.pointcloud2_from_xyz(np.ones((50, 3)) * (k + 5.0), frame_id="lidar",
+                                                             stamp=convert.ns_to_stamp(k * 100_000_000)))
+    assert engine.guesses[0] is None and engine.guesses[3] is None
+    for k in (1, 2, 4):
+        np.testing.assert_allclose(engine.guesses[k][:3, 3], [1.0, 0.0, 0.0], atol=1e-12)
+    values = proc.diagnostics_values()
+    assert (values["frames_guessed"], values["frames_unguessed"], values["guess_rejected"]) == (3, 1, 1)
+    assert "registration.max_translation" in values["last_error"]
