@@ -7,8 +7,9 @@
 `register_points(..., guess=T_prev_curr)` (the node: `guess.enabled`, topic `guess_odom`) registers each scan from
 the other source's motion instead of the constant-velocity prediction. The guess here is the ground truth's motion as
 a wheel odometry reports it: planar (x, y and yaw; no z, roll or pitch), the distance `--scale` times too long, the
-heading off by Gaussian noise of `--yaw-noise` degrees a frame (seeded). Each run starts at a given scan with a fresh Odometry, a fresh KISS-ICP
-(deskew off, on exactly the points line_odom keeps) and no velocity: a start mid-drive. Printed: mean / max
+heading off by Gaussian noise of `--yaw-noise` degrees a frame (seeded). Each run starts at a given scan with a
+fresh Odometry, a fresh KISS-ICP (deskew off, on exactly the points line_odom keeps) and no velocity: a start
+mid-drive. Printed: mean / max
 frame-to-frame translation error (m) and mean rotation error (deg) of the guess itself, line_odom without it
 (constant velocity), line_odom with it, and KISS-ICP; and how many of line_odom's frames held a direction at the
 prediction (degenerate).

@@ -311,9 +311,7 @@ class OdometryProcessor:
             return None, None
         with self._guess_lock:
             T = self.guess.pose_at(stamp_ns)
-        if self._last_stamp_ns is None:  # first frame: nothing to move from
-            return None, T
-        if T is None or self._guess_prev is None:
+        if T is None or self._guess_prev is None:  # (None on the first frame after a start or reset)
             return None, T
         delta = self.T_sensor_base @ (frames.inverse(self._guess_prev) @ T) @ self.T_base_sensor
         # A jump the registration could not follow (a source reset to its origin, a glitch) is no guess: held, it

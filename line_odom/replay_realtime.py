@@ -169,8 +169,8 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         total = min(total, frames)
     log_file = Path(tempfile.mkstemp(prefix="line_odom_node_", suffix=".log")[1])
     with open(log_file, "wb") as log:
-        proc = subprocess.Popen(node_command(inp, preset, overrides, guess_topic), env=env, stdout=log, stderr=subprocess.STDOUT,
-                                preexec_fn=die_with_parent)
+        proc = subprocess.Popen(node_command(inp, preset, overrides, guess_topic), env=env, stdout=log,
+                                stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("line_odom_replay", context=context)
@@ -187,8 +187,8 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     clock_pub = node.create_publisher(Clock, "/clock", 10)
     data_pub = node.create_publisher(PointCloud2 if inp.kind == "pointcloud" else Image, inp.topic, reliable)
     info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
-    guess_pub = node.create_publisher(Odometry, guess_topic, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)) \
-        if guess_topic else None
+    guess_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    guess_pub = node.create_publisher(Odometry, guess_topic, guess_qos) if guess_topic else None
     sub = node.create_subscription(Odometry, NODE_OUTPUT_TOPIC, on_odom, QoSProfile(depth=1000))
     executor.add_node(node)
     stop_spinning = spin_in_background(executor)

@@ -68,12 +68,11 @@ Vec3 ground_up(const ScanFeatures& features) {
   return up;
 }
 
-// The horizontal direction (in the plane of ground_up) along which the scan's lines run most, by length in 1-degree
-// bins smoothed over three: a road's, whatever the sensor's mounting yaw or tilt. The ground's ring and radial lines
-// run every way and only raise the floor.
-Vec3 dominant_line_direction(const ScanFeatures& features) {
+// The horizontal direction (in the plane normal to `up`, ground_up) along which the scan's lines run most, by length
+// in 1-degree bins smoothed over three: a road's, whatever the sensor's mounting yaw or tilt. The ground's ring and
+// radial lines run every way and only raise the floor.
+Vec3 dominant_line_direction(const ScanFeatures& features, const Vec3& up) {
   constexpr int kBins = 180;
-  const Vec3 up = ground_up(features);
   // a basis of the ground's plane: the sensor's x axis projected onto it, and up x that
   Vec3 e1 = Vec3::UnitX() - up.x() * up;
   if (!(e1.norm() > 1e-6)) e1 = Vec3::UnitY() - up.y() * up;
@@ -218,7 +217,6 @@ SensorModel make_sensor_model(const SensorOptions& options) {
 template <typename Scalar>
 FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std::size_t stride,
                                       const std::int32_t* ring, double stamp, const RigidTransform* guess) {
-  check_guess(guess);
   Stopwatch watch;
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
@@ -229,7 +227,6 @@ FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std
 template <typename Scalar>
 FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
                                          const RigidTransform* guess) {
-  check_guess(guess);
   Stopwatch watch;
   const RangeImage image = organize_cloud(data, rows, cols, stride, config_.sensor.limits);
   return register_range_image(image, stamp, watch.ms(), 1, guess);
@@ -237,7 +234,6 @@ FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols,
 
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
                                      const RigidTransform* guess) {
-  check_guess(guess);
   Stopwatch watch;
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image = organize_depth_downsampled(depth, rows, cols, K, config_.sensor.limits, step);
@@ -535,7 +531,7 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
   // Also along the sensor's x axis laid onto the ground (a sensor tilted forward or back) and along the lines.
   const Vec3 up = ground_up(cur);
   const Vec3 level_x = (Vec3::UnitX() - up.x() * up).normalized();
-  const Vec3 along_lines = dominant_line_direction(cur);
+  const Vec3 along_lines = dominant_line_direction(cur, up);
   for (const Vec3& direction : {level_x, along_lines}) {
     bool scanned = direction.cwiseAbs().maxCoeff() >= kSameAxisCosine;
     for (const auto& scan : scans) scanned = scanned || std::abs(scan.second.dot(direction)) >= kSameAxisCosine;
