@@ -141,6 +141,14 @@ class LineOdomNode(Node):
                                    reliability=qos_profile_sensor_data.reliability)
             self.create_subscription(Odometry, "guess_odom", self.processor.add_guess, guess_qos)
             inputs.append(self.resolve_topic_name("guess_odom") + " (motion guess)")
+        if s.base_to_sensor_from_tf:
+            from tf2_msgs.msg import TFMessage
+
+            # as tf2's static listener: reliable and transient local, so transforms latched before the start arrive
+            static_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                                    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.create_subscription(TFMessage, "/tf_static", self.processor.add_static_tf, static_qos)
+            inputs.append(f"/tf_static ({s.base_frame} -> the input's frame)")
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_timer(s.diagnostics_period, self._publish_diagnostics)
         self._last_path_stamp: float | None = None

@@ -16,9 +16,11 @@ import time
 from typing import Any, Callable, Mapping
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from line_odom import convert, frames
 from line_odom.motion_guess import MotionGuess
+from line_odom.static_tf import StaticTransforms, TransformError
 from line_odom_core.config import Config, config_schema, load_config
 
 INPUTS = ("pointcloud", "depth")
@@ -48,6 +50,10 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("publish_tf", bool, True, "broadcast odom_frame -> base_frame on /tf"),
     NodeParameter("base_to_sensor", list, [0.0] * 6, "pose of the sensor in the base frame, T_base_sensor: "
                   "[x, y, z, roll, pitch, yaw] (m, rad) or [x, y, z, qx, qy, qz, qw]"),
+    NodeParameter("base_to_sensor_from_tf", bool, False, "take T_base_sensor from /tf_static instead of base_to_sensor: "
+                  "the transform base_frame -> the input's header.frame_id (robot_state_publisher, "
+                  "static_transform_publisher), looked up at the first frame that has it; frames before it are "
+                  "dropped and counted (frames_no_extrinsic)"),
     NodeParameter("initial_pose", list, [0.0] * 6, "pose of the base in the odom frame at the first frame and after "
                   "a reset: [x, y, z, roll, pitch, yaw] (m, rad) or [x, y, z, qx, qy, qz, qw]"),
     NodeParameter("path.max_poses", int, 1000, "poses kept in the published nav_msgs/Path (oldest dropped)", 1,
@@ -121,6 +127,7 @@ class NodeSettings:
     base_frame: str = "base_link"
     publish_tf: bool = True
     base_to_sensor: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
+    base_to_sensor_from_tf: bool = False
     initial_pose: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
     path_max_poses: int = 1000
     path_period: float = 0.0
@@ -157,6 +164,17 @@ class NodeSettings:
 
     def as_dict(self) -> dict[str, Any]:
         return {p.name: getattr(self, self.attribute(p.name)) for p in NODE_PARAMETERS}
+
+
+def settings_from_parameters(preset_or_path: str = "kitti_hdl64",
+                             overrides: Mapping[str, Any] | None = None) -> tuple[Config, NodeSettings]:
+    """The engine's and the node's settings from a preset name or ROS parameter YAML, with dotted overrides (engine
+    or node names)."""
+    overrides = dict(overrides or {})
+    node_over = {k: v for k, v in overrides.items() if k in NODE_PARAMETER_NAMES or k in IGNORED_KEYS}
+    engine_over = {k: v for k, v in overrides.items() if k not in node_over}
+    config = load_config(preset_or_path, engine_over)
+    return config, NodeSettings.from_mapping({**config.extra, **node_over})
 
 
 @dataclasses.dataclass
@@ -218,6 +236,11 @@ class OdometryProcessor:
                                   window=self.settings.guess_window) if self.settings.guess_enabled else None)
         if self.guess is not None:
             self.counters.update(frames_guessed=0, frames_unguessed=0, guess_rejected=0)
+        self.static_tf = StaticTransforms() if self.settings.base_to_sensor_from_tf else None
+        self._tf_lock = threading.Lock()
+        self.mounted_frame: str | None = None  # the sensor frame whose /tf_static mounting is T_base_sensor
+        if self.static_tf is not None:
+            self.counters.update(frames_no_extrinsic=0, tf_rejected=0)
         self.last_error: str | None = None
         self._last_logged: tuple[str, float] = ("", 0.0)
         self._suppressed = 0
@@ -234,12 +257,7 @@ class OdometryProcessor:
     def from_parameters(cls, preset_or_path: str = "kitti_hdl64", overrides: Mapping[str, Any] | None = None,
                         **kwargs) -> "OdometryProcessor":
         """From a preset name or ROS parameter YAML, with dotted overrides (engine or node names)."""
-        overrides = dict(overrides or {})
-        node_over = {k: v for k, v in overrides.items() if k in NODE_PARAMETER_NAMES or k in IGNORED_KEYS}
-        engine_over = {k: v for k, v in overrides.items() if k not in node_over}
-        config = load_config(preset_or_path, engine_over)
-        settings = NodeSettings.from_mapping({**config.extra, **node_over})
-        return cls(config, settings, **kwargs)
+        return cls(*settings_from_parameters(preset_or_path, overrides), **kwargs)
 
     # ------------------------------------------------------------------ state
     def _clear_state(self) -> None:
@@ -302,6 +320,48 @@ class OdometryProcessor:
         except convert.ConversionError as err:
             self._reject("guess_rejected", str(err), "rejected guess_odom message")
             return False
+        return True
+
+    def add_static_tf(self, msg) -> bool:
+        """One tf2_msgs/TFMessage from /tf_static (base_to_sensor_from_tf); an unusable transform is logged and
+        counted (tf_rejected), the message's others are kept."""
+        if self.static_tf is None:
+            return False
+        try:
+            with self._tf_lock:
+                self.static_tf.add(msg)
+        except TransformError as err:
+            self._reject("tf_rejected", str(err), "rejected /tf_static transform")
+            return False
+        return True
+
+    def _mount(self, frame_id: str) -> bool:
+        """base_to_sensor_from_tf: T_base_sensor from /tf_static, looked up at the first frame that has it and kept
+        (a static mounting); False, with the frame logged and counted, while it is unknown or for another sensor."""
+        frame_id = frame_id.lstrip("/")
+        if self.mounted_frame is not None:
+            if frame_id == self.mounted_frame:
+                return True
+            self._reject("frames_malformed", f"header.frame_id {frame_id!r} is not the sensor frame "
+                                             f"{self.mounted_frame!r} whose /tf_static mounting is in use")
+            return False
+        if not frame_id:
+            self._reject("frames_malformed", "header.frame_id is empty: base_to_sensor_from_tf looks the sensor's "
+                                             "mounting up on /tf_static by it")
+            return False
+        base = self.settings.base_frame
+        with self._tf_lock:
+            T = self.static_tf.lookup(base, frame_id)
+            known = len(self.static_tf)
+        if T is None:
+            self._reject("frames_no_extrinsic", f"no transform {base} -> {frame_id} on /tf_static yet "
+                                                f"(base_to_sensor_from_tf; {known} static transform(s) received)")
+            return False
+        self.T_base_sensor, self.T_sensor_base = T, frames.inverse(T)
+        self.mounted_frame = frame_id
+        rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
+        self._info(f"base_to_sensor from /tf_static: {base} -> {frame_id} = "
+                   f"{[round(float(v), 6) for v in (*T[:3, 3], *rpy)]} [x, y, z, roll, pitch, yaw]")
         return True
 
     def _guess_delta(self, stamp_ns: int) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -387,6 +447,8 @@ class OdometryProcessor:
     def _register(self, run, stamp_ns: int, frame_id: str, t0: float, receive_time: float | None):
         stamp = stamp_ns * 1e-9
         with self._frame_lock:
+            if self.static_tf is not None and not self._mount(frame_id):
+                return None
             reset_reason = None
             last = self._last_stamp_ns
             if last is not None and stamp_ns == last:
@@ -515,6 +577,11 @@ class OdometryProcessor:
         if self.guess is not None:
             with self._guess_lock:
                 values["guess_poses"] = len(self.guess)  # kept from guess_odom (guess.window)
+        if self.static_tf is not None:
+            with self._tf_lock:
+                known = len(self.static_tf)
+            values["base_to_sensor"] = (f"/tf_static {self.settings.base_frame} -> {self.mounted_frame}"
+                                        if self.mounted_frame else f"waiting for /tf_static ({known} transforms)")
         if lat.size:
             values.update(latency_ms_last=lat[-1], latency_ms_mean=float(lat.mean()),
                           latency_ms_p95=float(np.percentile(lat, 95)))
@@ -552,7 +619,9 @@ class OdometryProcessor:
                           ("frames_dropped", "frame(s) dropped (processing behind or no CameraInfo)"),
                           ("frames_duplicate", "frame(s) with a repeated stamp"),
                           ("frames_unguessed", "frame(s) without a guess_odom pose (constant-velocity prediction)"),
-                          ("guess_rejected", "guess_odom message(s) rejected")):
+                          ("guess_rejected", "guess_odom message(s) rejected"),
+                          ("frames_no_extrinsic", "frame(s) dropped: the sensor's mounting not on /tf_static yet"),
+                          ("tf_rejected", "/tf_static transform(s) rejected")):
             if since.get(key):
                 problems.append(f"{since[key]} {text}")
         if values["frames_processed"] == 0:

@@ -83,13 +83,18 @@ def select_input(reader: bags.BagReader, topic: str | None = None) -> ReplayInpu
     return ReplayInput("depth", chosen, info)
 
 
+def node_settings(kind: str, params: str | None = None, overrides: Mapping[str, Any] | None = None):
+    """(engine Config, NodeSettings) for this input kind: the --params file, else the preset for the input kind."""
+    from line_odom.processor import settings_from_parameters
+
+    return settings_from_parameters(params or PRESET_FOR_INPUT[kind], {**(overrides or {}), "input": kind})
+
+
 def make_processor(kind: str, params: str | None = None, overrides: Mapping[str, Any] | None = None):
-    """The node's processing core for this input kind: the --params file, else the preset for the input kind."""
+    """The node's processing core for this input kind (node_settings)."""
     from line_odom.processor import OdometryProcessor
 
-    overrides = dict(overrides or {})
-    overrides["input"] = kind
-    return OdometryProcessor.from_parameters(params or PRESET_FOR_INPUT[kind], overrides)
+    return OdometryProcessor(*node_settings(kind, params, overrides))
 
 
 def _rclpy_types(kind: str):
@@ -114,6 +119,11 @@ def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frame
         for message in reader.messages([inp.info_topic]):
             processor.set_camera_info(deserialize_message(message.raw, types["info"]))
             break
+    if processor.static_tf is not None:  # base_to_sensor_from_tf: the bag's static transforms, latched as in DDS
+        from tf2_msgs.msg import TFMessage
+
+        for message in reader.messages([bags.TF_STATIC_TOPIC]):
+            processor.add_static_tf(deserialize_message(message.raw, TFMessage))
     if guess_topic:  # offline, every pose of the guess source is known: each frame's is interpolated, never
         for message in reader.messages([guess_topic]):  # extrapolated (guess.window: replay_bag keeps them all)
             processor.add_guess(deserialize_message(message.raw, Odometry))
@@ -206,6 +216,10 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                                  f"{found + ', expected ' + bags.ODOMETRY if found else 'not in the bag'}")
             # (in-process every pose is read before the first frame and kept; in real time they arrive as published)
             overrides = {**({} if realtime else {"guess.window": 86400.0}), **(overrides or {}), "guess.enabled": True}
+        settings = node_settings(inp.kind, params, overrides)[1]
+        if settings.base_to_sensor_from_tf and reader.topics.get(bags.TF_STATIC_TOPIC) != bags.TF_MESSAGE:
+            raise ValueError(f"{reader.path}: base_to_sensor_from_tf is set but the bag has no {bags.TF_STATIC_TOPIC} "
+                             f"({bags.TF_MESSAGE}) to take the sensor's mounting from")
         gt_data = bags.read_ground_truth(reader)
         ground_truth = evaluation.Trajectory(gt_data[1], gt_data[0]) if gt_data is not None else None
         label = f"replay {Path(bag).name}"

@@ -60,15 +60,27 @@ def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any], guess
     return cmd
 
 
-def _sensor_in_base(preset_or_params: str, overrides: Mapping[str, Any]) -> np.ndarray:
-    from line_odom.processor import NODE_PARAMETER_NAMES, NodeSettings
-    from line_odom_core.config import load_config
+def _sensor_in_base(reader: bags.BagReader, inp, settings) -> tuple[np.ndarray, list[bytes]]:
+    """(T_base_sensor the node will use, the bag's /tf_static messages to publish when it takes it from there)."""
+    if not settings.base_to_sensor_from_tf:
+        return frames_mod.pose_from_params(settings.base_to_sensor, "base_to_sensor"), []
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import Image, PointCloud2
+    from tf2_msgs.msg import TFMessage
 
-    engine_over = {k: v for k, v in overrides.items() if k not in NODE_PARAMETER_NAMES and k != "use_sim_time"}
-    config = load_config(preset_or_params, engine_over)
-    node_over = {k: v for k, v in overrides.items() if k in NODE_PARAMETER_NAMES}
-    settings = NodeSettings.from_mapping({**config.extra, **node_over})
-    return frames_mod.pose_from_params(settings.base_to_sensor, "base_to_sensor")
+    from line_odom.static_tf import StaticTransforms
+
+    tree, static = StaticTransforms(), []
+    for message in reader.messages([bags.TF_STATIC_TOPIC]):
+        static.append(message.raw)
+        tree.add(deserialize_message(message.raw, TFMessage))
+    first = next(iter(reader.messages([inp.topic])))
+    frame_id = deserialize_message(first.raw, PointCloud2 if inp.kind == "pointcloud" else Image).header.frame_id
+    T = tree.lookup(settings.base_frame, frame_id)
+    if T is None:
+        raise ValueError(f"{reader.path}: base_to_sensor_from_tf is set but {bags.TF_STATIC_TOPIC} has no transform "
+                         f"{settings.base_frame} -> {frame_id} (the frame of {inp.topic})")
+    return T, static
 
 
 def header_stamp_ns(raw: bytes) -> int:
@@ -153,11 +165,11 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
     from line_odom import convert
-    from line_odom.replay import PRESET_FOR_INPUT, ReplayRun
+    from line_odom.replay import PRESET_FOR_INPUT, ReplayRun, node_settings
 
     preset = params or PRESET_FOR_INPUT[inp.kind]
     overrides = dict(overrides or {})
-    T_base_sensor = _sensor_in_base(preset, overrides)
+    T_base_sensor, static_tf = _sensor_in_base(reader, inp, node_settings(inp.kind, params, overrides)[1])
     profile = _fastdds_profile()
     if profile and "FASTDDS_DEFAULT_PROFILES_FILE" not in os.environ:
         os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = profile
@@ -189,6 +201,14 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
     guess_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     guess_pub = node.create_publisher(Odometry, guess_topic, guess_qos) if guess_topic else None
+    if static_tf:  # latched for the node, as robot_state_publisher does
+        from rclpy.qos import DurabilityPolicy
+        from tf2_msgs.msg import TFMessage
+
+        static_pub = node.create_publisher(TFMessage, bags.TF_STATIC_TOPIC, QoSProfile(
+            depth=len(static_tf), reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        for raw in static_tf:
+            static_pub.publish(raw)
     sub = node.create_subscription(Odometry, NODE_OUTPUT_TOPIC, on_odom, QoSProfile(depth=1000))
     executor.add_node(node)
     stop_spinning = spin_in_background(executor)

@@ -208,3 +208,16 @@ def transform_matrix(tf) -> np.ndarray:
     T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
     T[:3, 3] = [tf.translation.x, tf.translation.y, tf.translation.z]
     return T
+
+
+def transform_stamped(parent: str, child: str, T: np.ndarray):
+    """geometry_msgs/TransformStamped parent -> child of a 4x4 T_parent_child (for /tf_static)."""
+    from geometry_msgs.msg import TransformStamped
+    from scipy.spatial.transform import Rotation
+
+    ts = TransformStamped()
+    ts.header.frame_id, ts.child_frame_id = parent, child
+    ts.transform.translation.x, ts.transform.translation.y, ts.transform.translation.z = (float(v) for v in T[:3, 3])
+    r = ts.transform.rotation
+    r.x, r.y, r.z, r.w = (float(v) for v in Rotation.from_matrix(T[:3, :3]).as_quat())
+    return ts

@@ -14,7 +14,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import Trigger
 
-from node_harness import Harness, NodeProcess, pose_matrix, transform_matrix, use_large_message_profile
+from node_harness import (Harness, NodeProcess, pose_matrix, transform_matrix, transform_stamped,
+                          use_large_message_profile)
 from line_odom import convert, frames
 from line_odom.bags import kitti_rings
 from line_odom.datasets import kitti_sequence, tum_sequence
@@ -589,3 +590,49 @@ def test_motion_guess_from_a_wheel_odometry_topic(run_node):
     values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == len(scans), "frames_processed")
     assert (int(values["frames_guessed"]), int(values["frames_unguessed"])) == (len(scans) - 1, 0)
     assert values["prediction"] == "guess"
+
+
+def test_sensor_mounting_from_a_latched_tf_static(run_node):
+    # robot_state_publisher's way: base_test -> lidar_mount -> velodyne on /tf_static (reliable, transient local),
+    # published before the node exists. With base_to_sensor_from_tf the node takes T_base_sensor from it and publishes
+    # X · S_k · X⁻¹ as with the same X given as base_to_sensor (test_initial_pose_extrinsic_and_reset_service).
+    import line_odom_core
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from tf2_msgs.msg import TFMessage
+
+    M = frames.pose_from_params([0.5, -0.2, 1.2, 0.1, 0.0, 0.8], "mount")
+    L = frames.pose_from_params([0.0, 0.0, 0.6, 0.0, 0.0, 0.0], "lidar")
+    X = M @ L
+    early = Harness("/tf_static_publisher")  # its own participant, up before the node
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    static_pub = early.node.create_publisher(TFMessage, "/tf_static", latched)
+    static_pub.publish(TFMessage(transforms=[transform_stamped("base_test", "lidar_mount", M),
+                                             transform_stamped("lidar_mount", "velodyne", L)]))
+    try:
+        seq = kitti_sequence("07", 3)
+        node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "base_frame": "base_test",
+                            "base_to_sensor_from_tf": True})
+        pub = h.publisher(PointCloud2, node.topic("points"))
+        h.wait_matched(pub, node, STARTUP_S)
+        wait_diagnostics(h, node, lambda v: v["base_to_sensor"] == "waiting for /tf_static (2 transforms)",
+                         "the latched transforms received")
+        engine = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 6}))
+        stamps = [700.0 + float(t) for t in seq.times]
+        published, sensor = [], []
+        for i, stamp in enumerate(stamps):
+            msg = kitti_unorganized(seq, i, stamp)
+            cloud = convert.pointcloud2_to_arrays(msg)
+            sensor.append(engine.register_points(cloud.xyz, ns(stamp) * 1e-9, ring=cloud.ring).pose)
+            published.append(pose_matrix(publish_and_wait(h, node, pub, msg, stamp).pose.pose))
+        np.testing.assert_allclose(published[0], np.eye(4), atol=1e-9)
+        for i in (1, 2):
+            S = np.linalg.inv(sensor[0]) @ sensor[i]
+            np.testing.assert_allclose(published[i], X @ S @ np.linalg.inv(X), atol=1e-6)
+            # the mounting matters: without it the base would be where the sensor is, several cm off here
+            assert np.linalg.norm(S[:3, 3] - published[i][:3, 3]) > 0.05
+        values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == 3, "frames_processed")
+        assert values["base_to_sensor"] == "/tf_static base_test -> velodyne"
+        assert int(values["frames_no_extrinsic"]) == 0
+        assert "base_to_sensor from /tf_static: base_test -> velodyne" in node.output()
+    finally:
+        early.close()

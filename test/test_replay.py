@@ -135,6 +135,42 @@ def test_replay_parameter_errors(tmp_path, capsys, tum_bags):
     assert "NAME=VALUE" in capsys.readouterr().err
 
 
+def test_replay_takes_the_sensor_mounting_from_the_bags_tf_static(tmp_path, capsys, kitti_bags, tum_bags):
+    """A KITTI bag carries velodyne -> camera_0 on /tf_static. With base_frame camera_0 and base_to_sensor_from_tf
+    the odometry is the camera's (KITTI's ground-truth frame), the same as with that transform given as
+    base_to_sensor, and the sensor's own motion is unchanged."""
+    from scipy.spatial.transform import Rotation
+
+    from line_odom.replay import replay_bag
+
+    seq = datasets.kitti_sequence("00")
+    T_velo_cam = np.linalg.inv(seq.Tr)  # (Tr maps velodyne into camera_0 coordinates: T_cam_velo)
+    T_cam_velo = seq.Tr
+    q = Rotation.from_matrix(T_cam_velo[:3, :3]).as_quat()
+    common = {"downsample": 6, "base_frame": bags.KITTI_CAMERA_FRAME}
+    runs = {}
+    for name, extra in (("tf", {"base_to_sensor_from_tf": True}),
+                        ("parameter", {"base_to_sensor": [*T_cam_velo[:3, 3], *q]}),
+                        ("none", {"base_frame": bags.KITTI_FRAME})):
+        runs[name] = replay_bag(kitti_bags["sqlite3"], tmp_path / name, overrides={**common, **extra},
+                                progress=False).run
+    tf, parameter, none = runs["tf"], runs["parameter"], runs["none"]
+    assert len(tf.odometry_msgs) == len(parameter.odometry_msgs) == 10 and tf.counters["frames_no_extrinsic"] == 0
+    for (_, a), (_, b) in zip(tf.odometry_msgs, parameter.odometry_msgs):
+        assert a.child_frame_id == bags.KITTI_CAMERA_FRAME
+        np.testing.assert_allclose(bags.odometry_to_pose(a)[1], bags.odometry_to_pose(b)[1], atol=1e-9)
+    # the sensor's poses, in an odom frame at the camera's start
+    np.testing.assert_allclose(tf.estimate.poses, T_cam_velo @ none.estimate.poses, atol=1e-9)
+    camera = np.array([bags.odometry_to_pose(m)[1] for _, m in tf.odometry_msgs])
+    velodyne = np.array([bags.odometry_to_pose(m)[1] for _, m in none.odometry_msgs])
+    np.testing.assert_allclose(camera, T_cam_velo @ velodyne @ T_velo_cam, atol=1e-9)
+    # a bag without /tf_static: a one-line error, not an empty run
+    assert main(["replay", str(tum_bags["sqlite3"]), "--out", str(tmp_path / "o"), "--set",
+                 "base_to_sensor_from_tf=true", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "base_to_sensor_from_tf is set but the bag has no /tf_static" in err and "Traceback" not in err
+
+
 def _wheel_odometry_bag(path):
     """KITTI 04 from scan 2 (ring field, ground truth) with /wheel/odometry: the ground truth's x, y and yaw, 3 %
     long, at the scans' stamps. Returns the number of scans."""
@@ -233,6 +269,22 @@ def test_realtime_replay_publishes_the_guess_topic(tmp_path, ros_env):
     m = _metrics(out)
     assert m["frames"] + m["frames_dropped"] == n and m["frames"] >= n - 2, m
     assert m["rpe_trans_mean_m"] < 0.15, m
+
+
+def test_realtime_replay_latches_the_bags_tf_static(tmp_path, ros_env, kitti_bags):
+    """--realtime with base_to_sensor_from_tf: the bag's /tf_static is published latched for the node, which takes
+    the camera's mounting from it; the sensor poses written are those of the in-process replay (bound: the
+    in-process run's error, with room for frames the node skips)."""
+    args = ["--set", "downsample=6", "--set", "base_to_sensor_from_tf=true", "--set", "base_frame=camera_0", "--quiet"]
+    assert main(["replay", str(kitti_bags["sqlite3"]), "--out", str(tmp_path / "in"), *args]) == 0
+    run = _replay_process([str(kitti_bags["sqlite3"]), "--out", str(tmp_path / "rt"), "--realtime", "--rate", "0.5",
+                           *args], ros_env)
+    assert run.returncode == 0, run.stdout
+    offline, live = _metrics(tmp_path / "in"), _metrics(tmp_path / "rt")
+    assert live["frames"] + live["frames_dropped"] == 10 and live["frames"] >= 8, live
+    # (without the latched transform the node drops every frame; with another mounting than the replay's, each
+    # 0.86 m step would come out turned into the camera's axes: ~1 m off)
+    assert live["rpe_trans_mean_m"] < 1.5 * offline["rpe_trans_mean_m"] + 0.05, (live, offline)
 
 
 DIE_WITH_PARENT_PARENT = r"""
