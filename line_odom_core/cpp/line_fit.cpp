@@ -76,8 +76,7 @@ inline __attribute__((always_inline)) LineLeastSquares finish_line(const LinePre
 struct ScanBuffer {
   int cell0 = 0, cell_step = 1;         // range-image cell of position k along the scan line: cell0 + k cell_step
   std::vector<int> pos;
-  std::vector<Vec3> p;
-  std::vector<double> x, y, z;        // p as structure of arrays
+  std::vector<double> x, y, z;        // the points, as structure of arrays
   std::vector<double> tau;
   std::vector<double> inv_tau2;       // 1 / tau^2
   struct PrefixSums {
@@ -90,6 +89,7 @@ struct ScanBuffer {
   int count = 0;                      // points in this scan line (the arrays keep their largest size)
 
   int size() const { return count; }
+  Vec3 p(int k) const { return Vec3(x[k], y[k], z[k]); }
   Moments stretch(int a, int b) const {  // points [a, b]
     const PrefixSums& hi = prefix[b + 1];
     const PrefixSums& lo = prefix[a];
@@ -126,7 +126,7 @@ double residual(const LineLeastSquares& f, const Vec3& p) { return std::sqrt(dis
 
 // Squared distance to the line over the squared threshold: > 1 means outside.
 inline __attribute__((always_inline)) double excess2(const LineLeastSquares& f, const ScanBuffer& buf, int k) {
-  return distance2(buf.p[k], f.centroid, f.direction) * buf.inv_tau2[k];
+  return distance2(buf.p(k), f.centroid, f.direction) * buf.inv_tau2[k];
 }
 
 void remove_point(Moments* m, const Vec3& p) { m->remove(p); }
@@ -147,6 +147,16 @@ inline __attribute__((always_inline)) F4 load4(const double* p) {
 }
 
 inline __attribute__((always_inline)) bool any(const I4& m) { return (m[0] | m[1] | m[2] | m[3]) != 0; }
+
+// rows[i] = (a[i], b[i], c[i], d[i])
+inline __attribute__((always_inline)) void transpose4(const F4& a, const F4& b, const F4& c, const F4& d, F4* rows) {
+  const F4 ab_even = __builtin_shuffle(a, b, I4{0, 4, 2, 6}), ab_odd = __builtin_shuffle(a, b, I4{1, 5, 3, 7});
+  const F4 cd_even = __builtin_shuffle(c, d, I4{0, 4, 2, 6}), cd_odd = __builtin_shuffle(c, d, I4{1, 5, 3, 7});
+  rows[0] = __builtin_shuffle(ab_even, cd_even, I4{0, 1, 4, 5});
+  rows[1] = __builtin_shuffle(ab_odd, cd_odd, I4{0, 1, 4, 5});
+  rows[2] = __builtin_shuffle(ab_even, cd_even, I4{2, 3, 6, 7});
+  rows[3] = __builtin_shuffle(ab_odd, cd_odd, I4{2, 3, 6, 7});
+}
 
 // Index (1..n) of the largest ratio above 1 of the squared distances of points 1..n of X/Y/Z to the chord from
 // point 0 to point n+1 over their squared thresholds (times W), -1 if none; ties: the first. The ratios are >= +0
@@ -335,13 +345,13 @@ class ScanLineFitter {
   // original expressions, so the decisions are the same bit for bit.
   bool breaks_between(const ScanBuffer& buf, int i, int j) const {
     if (buf.pos[j] - buf.pos[i] - 1 > cfg_.max_gap) return true;
-    const Vec3 step = buf.p[j] - buf.p[i];
+    const Vec3 step = buf.p(j) - buf.p(i);
     const double len2 = step.squaredNorm();
     const double tau = std::max(buf.tau[i], buf.tau[j]);
     const double tau2 = tau * tau;
     if (len2 < tau2 * (1.0 - kMargin)) return false;  // within noise: never a jump
     if (len2 <= tau2 * (1.0 + kMargin) && std::sqrt(len2) <= tau) return false;
-    const Vec3 w = buf.p[i] + buf.p[j];
+    const Vec3 w = buf.p(i) + buf.p(j);
     // |step x ray| < sin * len  <=>  |step x w|^2 < sin^2 len^2 |w|^2
     const double lhs = step.cross(w).squaredNorm();
     const double rhs = sin2_min_incidence_ * len2 * w.squaredNorm();
@@ -409,9 +419,9 @@ class ScanLineFitter {
   // largest threshold when their triangle is wider than 2 T (its smallest altitude; a strip of half-width T
   // around any line, projected into the triangle's plane, would hold it). Margin 1e-6: far beyond the rounding.
   bool merge_must_fail(const ScanBuffer& buf, const CandidateLine& line, int b) const {
-    const Vec3& p0 = buf.p[line.first];
-    const Vec3& p1 = buf.p[line.last];
-    const Vec3& p2 = buf.p[b];
+    const Vec3 p0 = buf.p(line.first);
+    const Vec3 p1 = buf.p(line.last);
+    const Vec3 p2 = buf.p(b);
     const Vec3 v = p2 - p0;
     const double area2 = distance2(p1, p0, v);  // |(p1 - p0) x (p2 - p0)|^2 = (2 area)^2
     const double side01 = squared_norm(p1.x() - p0.x(), p1.y() - p0.y(), p1.z() - p0.z());
@@ -474,7 +484,7 @@ class ScanLineFitter {
   }
 
   Vec3 chord_direction(const ScanBuffer& buf, int a, int b) const {
-    const Vec3 d = buf.p[b] - buf.p[a];
+    const Vec3 d = buf.p(b) - buf.p(a);
     const double n = std::sqrt(squared_norm(d));
     if (!(n > 1e-12)) return Vec3::UnitX();
     const F4 unit = F4{d.x(), d.y(), d.z(), n} / n;  // the three quotients in one vector division
@@ -520,7 +530,7 @@ class ScanLineFitter {
     }
     auto outside = [&](int k) {
       if (pre.usable()) {
-        const double e = distance2(buf.p[k], pre.centroid, pre.u) * buf.inv_tau2[k];
+        const double e = distance2(buf.p(k), pre.centroid, pre.u) * buf.inv_tau2[k];
         if (e > pre.norm2 * (1.0 + kMargin)) return true;
         if (e < pre.norm2 * (1.0 - kMargin)) return false;
       }
@@ -572,7 +582,7 @@ class ScanLineFitter {
     Moments m = buf.stretch(c->first, c->last);
     for (int i = c->skipped_begin; i < c->skipped_end; ++i) {
       const int k = skipped_[i];
-      if (k >= c->first && k <= c->last) remove_point(&m, buf.p[k]);
+      if (k >= c->first && k <= c->last) remove_point(&m, buf.p(k));
     }
     c->moments = m;
     c->fit = fit_line(m, c->fit.direction);
@@ -591,7 +601,7 @@ class ScanLineFitter {
   // 1e-10 trace |u|^2 absolute on the rms (its cancellation); the floor is floor_per_tau_ x the split threshold up
   // to a few ulps. Undecided cases take the finished fit, so the decisions are the same.
   bool clearly_kept(const ScanBuffer& buf, int k, const LinePrefit& pre, int n) const {
-    const double d2 = distance2(buf.p[k], pre.centroid, pre.u);
+    const double d2 = distance2(buf.p(k), pre.centroid, pre.u);
     const double e = d2 * buf.inv_tau2[k];
     if (!(e < pre.norm2 * (1.0 - kMargin))) return false;        // maybe beyond the split threshold
     if (e < pre.norm2 * floor_bound_) return true;                // within the floor
@@ -618,7 +628,7 @@ class ScanLineFitter {
         const int a = c.first + (c.last - c.first) / 4, b = c.last - (c.last - c.first) / 4;
         Moments core = buf.stretch(a, b);
         for (int i = c.skipped_begin; i < c.skipped_end; ++i)
-          if (skipped_[i] >= a && skipped_[i] <= b) remove_point(&core, buf.p[skipped_[i]]);
+          if (skipped_[i] >= a && skipped_[i] <= b) remove_point(&core, buf.p(skipped_[i]));
         judge = fit_line(core, c.fit.direction);
         // a fit to n points absorbs 4 of their 2n residual components: unbiased rms
         limit_rms = judge.rms * unbiased_factor(core.count);
@@ -630,20 +640,20 @@ class ScanLineFitter {
       auto beyond = [&](double d2, double limit, int k) {
         if (d2 < limit * limit * (1.0 - kMargin)) return false;
         const double r = std::sqrt(d2);
-        return r > limit && r > 0.5 * cfg_.max_rms * cfg_.threshold_scale(std::sqrt(squared_norm(buf.p[k])));
+        return r > limit && r > 0.5 * cfg_.max_rms * cfg_.threshold_scale(std::sqrt(squared_norm(buf.p(k))));
       };
       auto off = [&](int k) {
         if (short_line && c.moments.count >= 5) {  // judged by the line through the other points
           Moments rest = c.moments;
-          remove_point(&rest, buf.p[k]);
+          remove_point(&rest, buf.p(k));
           const LinePrefit pre = prefit_line(rest, c.fit.direction);
           if (pre.usable() && clearly_kept(buf, k, pre, rest.count)) return false;
           const LineLeastSquares f = finish_line(pre, rest, c.fit.direction);
           const double rms = f.rms * unbiased_factor(rest.count);
-          return excess2(f, buf, k) > 1.0 || beyond(distance2(buf.p[k], f.centroid, f.direction), cfg_.trim_sigmas * rms, k);
+          return excess2(f, buf, k) > 1.0 || beyond(distance2(buf.p(k), f.centroid, f.direction), cfg_.trim_sigmas * rms, k);
         }
         if (excess2(judge, buf, k) > 1.0) return true;
-        return beyond(distance2(buf.p[k], judge.centroid, judge.direction), cfg_.trim_sigmas * limit_rms, k);
+        return beyond(distance2(buf.p(k), judge.centroid, judge.direction), cfg_.trim_sigmas * limit_rms, k);
       };
       int lo = c.first, hi = c.last;
       while (hi > lo && off(lo)) lo = next_inlier(lo, 1);
@@ -658,8 +668,8 @@ class ScanLineFitter {
     const double range = c.fit.centroid.norm();
     if (!(c.fit.rms <= cfg_.max_rms * cfg_.threshold_scale(range))) return false;
     const Vec3& d = c.fit.direction;
-    const double t0 = (buf.p[c.first] - c.fit.centroid).dot(d);
-    const double t1 = (buf.p[c.last] - c.fit.centroid).dot(d);
+    const double t0 = (buf.p(c.first) - c.fit.centroid).dot(d);
+    const double t1 = (buf.p(c.last) - c.fit.centroid).dot(d);
     return std::abs(t1 - t0) >= cfg_.min_length;
   }
 
@@ -673,7 +683,7 @@ class ScanLineFitter {
         CandidateLine& b = candidates_[i];
         if (a.last == b.first) {
           const int k = b.first;
-          const double ra = residual(a.fit, buf.p[k]), rb = residual(b.fit, buf.p[k]);
+          const double ra = residual(a.fit, buf.p(k)), rb = residual(b.fit, buf.p(k));
           CandidateLine& loser = ra <= rb ? b : a;
           if (&loser == &b) {
             b.first = next_inlier(b.first, 1);
@@ -696,8 +706,8 @@ class ScanLineFitter {
             std::vector<std::int32_t>* labels) const {
     const Vec3& d = c.fit.direction;
     const Vec3& o = c.fit.centroid;
-    const Vec3& p0 = buf.p[c.first];
-    const Vec3& p1 = buf.p[c.last];
+    const Vec3 p0 = buf.p(c.first);
+    const Vec3 p1 = buf.p(c.last);
     // Direction from the first to the last inlier along the scan line.
     const Vec3 dir = (p1 - p0).dot(d) >= 0.0 ? d : Vec3(-d);
     LineFeature f;
@@ -772,11 +782,12 @@ LINE_FIT_CLONES void cell_thresholds(const RangeImage& img, const LineFitConfig&
   }
 }
 
-void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizontal, int index, ScanBuffer* buf) {
+// Its own clones, called once per scan line: inlined into fit_pass it shares the registers of the whole fitter.
+__attribute__((noinline)) LINE_FIT_CLONES void fill_buffer(const RangeImage& img, const CellThresholds& th,
+                                                          bool horizontal, int index, ScanBuffer* buf) {
   const int n = horizontal ? img.cols : img.rows;
   if (static_cast<int>(buf->pos.size()) < n) {  // grow once; sizes stay at the maximum, `count` is the length
     buf->pos.resize(n);
-    buf->p.resize(n);
     buf->x.resize(n + kPad);
     buf->y.resize(n + kPad);
     buf->z.resize(n + kPad);
@@ -788,63 +799,77 @@ void fill_buffer(const RangeImage& img, const CellThresholds& th, bool horizonta
   const int step = horizontal ? 1 : img.cols;
   buf->cell0 = cell0;
   buf->cell_step = step;
-  // The valid points, compacted, and their prefix sums: running sums in registers (the same additions, in the same
-  // order, as prev + p p^T), in the same pass.
+  // The valid points, compacted; then their prefix sums (two loops: one holding every output stream would keep more
+  // pointers live than there are registers).
   const std::uint8_t* __restrict valid = img.valid.data();
   const double* __restrict points = img.points.empty() ? nullptr : img.points[0].data();
   const double* __restrict cell_tau = th.tau.data();
   int* __restrict out_pos = buf->pos.data();
-  double* __restrict out_p = buf->p.empty() ? nullptr : buf->p[0].data();
   double* __restrict out_x = buf->x.data();
   double* __restrict out_y = buf->y.data();
   double* __restrict out_z = buf->z.data();
   double* __restrict out_tau = buf->tau.data();
   double* __restrict out_inv_tau2 = buf->inv_tau2.data();
-  ScanBuffer::PrefixSums* __restrict prefix = buf->prefix.data();
-  prefix[0] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
-  F4 low = {0.0, 0.0, 0.0, 0.0}, high = {0.0, 0.0, 0.0, 0.0};  // (sx, sy, sz, xx), (xy, xz, yy, yz): PrefixSums order
-  double zz = 0.0;
-  // (pointers stepped along the scan line and the outputs: no index arithmetic in the loop)
-  const std::ptrdiff_t stride = step;
+  // (pointers stepped along the scan line, by a constant along rows: no index arithmetic in the loops)
   const std::uint8_t* __restrict v = valid + cell0;
   const double* __restrict q = points + 3 * static_cast<std::ptrdiff_t>(cell0);
   const double* __restrict t = cell_tau + 2 * static_cast<std::ptrdiff_t>(cell0);
-  ScanBuffer::PrefixSums* __restrict next = prefix + 1;
-  // A column's cells are `cols` cells apart, a stride the hardware prefetchers do not follow: the points and
-  // thresholds kPrefetchCells cells to the right are requested into L2 while this column is read.
-  constexpr int kPrefetchCells = 16;
-  const bool prefetch = !horizontal;
   int m = 0;
-  for (int k = 0; k < n; ++k, v += stride, q += 3 * stride, t += 2 * stride) {
-    if (prefetch) {
-      __builtin_prefetch(q + 3 * kPrefetchCells, 0, 2);
-      __builtin_prefetch(t + 2 * kPrefetchCells, 0, 2);
-    }
-    if (!*v) continue;
-    const double x = q[0], y = q[1], z = q[2];
+  auto copy = [&](int k) __attribute__((always_inline)) {
     out_pos[m] = k;
-    out_p[0] = x;
-    out_p[1] = y;
-    out_p[2] = z;
-    out_p += 3;
-    out_x[m] = x;
-    out_y[m] = y;
-    out_z[m] = z;
+    out_x[m] = q[0];
+    out_y[m] = q[1];
+    out_z[m] = q[2];
     out_tau[m] = t[0];
     out_inv_tau2[m] = t[1];
-    low += F4{x, y, z, x * x};
-    high += F4{x, x, y, y} * F4{y, z, y, z};
-    zz += z * z;
+    ++m;
+  };
+  if (horizontal) {
+    for (int k = 0; k < n; ++k, ++v, q += 3, t += 2)
+      if (*v) copy(k);
+  } else {
+    // A column's cells are `cols` cells apart, a stride the hardware prefetchers do not follow: the points and
+    // thresholds kPrefetchCells cells to the right are requested into L2 while this column is read.
+    constexpr int kPrefetchCells = 16;
+    const std::ptrdiff_t stride = step;
+    for (int k = 0; k < n; ++k, v += stride, q += 3 * stride, t += 2 * stride) {
+      __builtin_prefetch(q + 3 * kPrefetchCells, 0, 2);
+      __builtin_prefetch(t + 2 * kPrefetchCells, 0, 2);
+      if (*v) copy(k);
+    }
+  }
+  buf->count = m;
+  // Running sums in registers (the same additions, in the same order, as prev + p p^T). Four points at a time: their
+  // products as vectors, transposed into one (x, y, z, xx) and one (xy, xz, yy, yz) vector per point.
+  ScanBuffer::PrefixSums* __restrict next = buf->prefix.data();
+  *next++ = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+  F4 low = {0.0, 0.0, 0.0, 0.0}, high = {0.0, 0.0, 0.0, 0.0};  // (sx, sy, sz, xx), (xy, xz, yy, yz): PrefixSums order
+  double zz = 0.0;
+  auto add = [&](const F4& point_low, const F4& point_high, double point_zz) __attribute__((always_inline)) {
+    low += point_low;
+    high += point_high;
+    zz += point_zz;
     std::memcpy(&next->sx, &low, sizeof low);
     std::memcpy(&next->xy, &high, sizeof high);
     next->zz = zz;
     ++next;
-    ++m;
+  };
+  int k = 0;
+  for (; k + kLanes <= m; k += kLanes) {
+    const F4 x = load4(out_x + k), y = load4(out_y + k), z = load4(out_z + k);
+    F4 lows[kLanes], highs[kLanes];
+    transpose4(x, y, z, x * x, lows);
+    transpose4(x * y, x * z, y * y, y * z, highs);
+    const F4 zzs = z * z;
+    for (int i = 0; i < kLanes; ++i) add(lows[i], highs[i], zzs[i]);
   }
-  buf->count = m;
+  for (; k < m; ++k) {
+    const double x = out_x[k], y = out_y[k], z = out_z[k];
+    add(F4{x, y, z, x * x}, F4{x, x, y, y} * F4{y, z, y, z}, z * z);
+  }
 }
 
-// The lines of rows (horizontal) or columns [begin, end); everything it calls is inlined into its two clones.
+// The lines of rows (horizontal) or columns [begin, end); all it calls but fill_buffer is inlined into its two clones.
 LINE_FIT_CLONES_FLATTEN void fit_pass(
     const RangeImage& image, const CellThresholds& thresholds, bool horizontal, int min_points,
     ScanLineFitter& fitter, ScanBuffer& buf, std::vector<LineFeature>* out, std::vector<std::int32_t>* labels,
