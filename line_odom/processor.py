@@ -587,7 +587,7 @@ class OdometryProcessor:
                           latency_ms_p95=float(np.percentile(lat, 95)))
         for key in (
                 "solver", "inliers", "degenerate", "held_directions", "candidates", "h_lines", "v_lines",
-                "registered_lines", "planes", "prediction"):
+                "registered_lines", "planes", "prediction", "unmeasured_directions"):
             if key in stats:
                 values[key] = stats[key]
         if "persistence" in stats:  # the share of the last motion the prediction carried, x y z rx ry rz
@@ -615,6 +615,9 @@ class OdometryProcessor:
             problems.append("degenerate geometry: pose held by the motion model, covariance inflated" if held >= 6 else
                             f"degenerate geometry: {held} of 6 motion directions held by the motion model, "
                             "covariance inflated along them")
+        if values.get("unmeasured_directions"):
+            problems.append(f"velocity along {values['unmeasured_directions']} direction(s) not measured since the "
+                            "start, reset or stamp gap (held at standing still), searched each frame")
         for key, text in (("frames_malformed", "frame(s) malformed"), ("frames_failed", "frame(s) failed"),
                           ("frames_dropped", "frame(s) dropped (processing behind or no CameraInfo)"),
                           ("frames_duplicate", "frame(s) with a repeated stamp"),

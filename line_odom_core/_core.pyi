@@ -115,6 +115,11 @@ class FrameResult:
                               motion guess), "standing_still" (no velocity yet, or constant_velocity off), "none"
                               (first frame)
       failure: str            why, when degenerate ("" otherwise)
+      unmeasured_directions: int  directions of the velocity no frame has measured since the first motion was held
+                              at standing still (after a start, reset or stamp gap where the scene did not observe
+                              the motion): 0 normally; while > 0, each frame searches them (the prediction holds them
+                              at zero, the motion prior does not pull towards it)
+      recovered: bool         this frame's motion was found by that search
       ms: dict[str, float]    per-stage milliseconds: organize, downsample, features, candidates, ransac, total
     """
 

@@ -868,6 +868,8 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
                                     s.persistence(4), s.persistence(5));
   d["prediction"] = s.prediction;
   d["failure"] = s.failure;
+  d["unmeasured_directions"] = s.unmeasured_directions;
+  d["recovered"] = s.recovered;
   d["ms"] = ms;
   return d;
 }

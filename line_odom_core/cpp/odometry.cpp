@@ -28,6 +28,11 @@ constexpr double kWeakShiftStep = 8.0;  // inlier thresholds between the shifts 
                                         // support peak of KITTI 04's forward motion: ~10 thresholds wide)
 constexpr double kSameAxisCosine = 0.999;  // a direction within 2.6 deg of a sensor axis is scanned with it
 constexpr double kMaxShiftSteps = 25.0;  // per side and axis, however small the inlier threshold
+constexpr double kUnmeasuredCosine = 0.5;  // a direction not measured stays so while the held directions reach within
+                                           // 60 deg of it (they wobble between x and pitch on KITTI 04 at 1/64)
+constexpr double kUnmeasuredTranslation = 0.5;  // an unmeasured direction this much (squared) a translation is scanned
+constexpr double kRecoveryMargin = 1.5;  // the support a motion found along unmeasured directions must have, in units
+                                         // of the held estimate's (measured: docs/NODE.md "The first motion")
 constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (every k-th): the same peaks on KITTI
                                          // as all 3000, at a fifth of the cost (docs/RESULTS.md)
 
@@ -97,6 +102,18 @@ Vec3 dominant_line_direction(const ScanFeatures& features, const Vec3& up) {
   }
   const double angle = (best + 0.5) * kPi / kBins;
   return std::cos(angle) * e1 + std::sin(angle) * e2;
+}
+
+// The directions of the subspace `a` (a projector) that the subspace `b` reaches within the angle of `cosine`, as a
+// projector.
+Mat6 common_directions(const Mat6& a, const Mat6& b, double cosine) {
+  Mat6 out = Mat6::Zero();
+  if (a.isZero() || b.isZero()) return out;
+  const Eigen::SelfAdjointEigenSolver<Mat6> es(a * b * a);
+  for (int k = 0; k < 6; ++k)
+    if (es.eigenvalues()(k) >= cosine * cosine)
+      out += es.eigenvectors().col(k) * es.eigenvectors().col(k).transpose();
+  return out;
 }
 
 class Stopwatch {
@@ -171,6 +188,7 @@ void Odometry::reset(const RigidTransform& pose) {
   pose_ = pose;
   last_delta_ = RigidTransform::identity();
   last_held_projector_ = Mat6::Zero();
+  unmeasured_projector_ = Mat6::Zero();
   persistence_.clear();
   last_dt_ = 0.0;
   prev_stamp_ = 0.0;
@@ -512,13 +530,55 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
   return outcome;
 }
 
-// The shifts of the estimate along its least observed translation (largest eigenvalue of its covariance, when it
-// has one), and of the prediction along each sensor axis and along the lines (vehicles move along a sensor axis or
-// the road; a wrong sample's rotation would hide the right shift, and where two directions are about as weak the
-// eigenvector mixes them), every kWeakShiftStep inlier thresholds (at most kMaxShiftSteps per side) out to the
-// largest motion the registration accepts (registration.max_translation, at least the candidate distance). Each is
-// scored on up to kScanLines of the scan's lines and the candidates within a quarter of the candidate distance, with
-// half a step of tolerance: true when one out-supports the estimate itself.
+// A velocity no frame has measured since the first motion was held (a start mid-drive on a sparse highway or in a
+// featureless corridor) stays at standing still along the directions no scan observes. When a scene that observes
+// them comes, the candidates picked near that velocity miss a motion beyond their distance: on the simulated street
+// after the corridor at 3 m a frame, held at zero for good or for 7 frames, some registered as standing still. So
+// each frame until they are measured, the estimate is scanned along their translations (translation_peak, as the first
+// motion's) and registered from the peak; that motion is taken when it observes every direction and the candidates
+// picked near it support it kRecoveryMargin times as much as the estimate. A velocity held correctly is out-supported
+// by no shift, and where the scene does not observe them the scan finds no peak or the registration is degenerate.
+bool Odometry::search_unmeasured(const ScanFeatures& prev, const ScanFeatures& cur, const ScanFeatures& prev_scanned,
+                                 const ScanFeatures& cur_scanned, const RigidTransform& prediction,
+                                 PassOutcome* outcome, FrameStats* st) const {
+  const RigidTransform& estimate = outcome->have ? outcome->best : prediction;
+  const Eigen::SelfAdjointEigenSolver<Mat3> translations(unmeasured_projector_.topLeftCorner<3, 3>());
+  std::vector<std::pair<RigidTransform, Vec3>> scans;
+  for (int k = 0; k < 3; ++k)
+    if (translations.eigenvalues()(k) >= kUnmeasuredTranslation)
+      scans.emplace_back(estimate, translations.eigenvectors().col(k));
+  if (scans.empty()) return false;
+  Stopwatch scan;
+  RigidTransform peak;
+  CandidateIndex scanned_index(prev_scanned);
+  const bool peaked = translation_peak(scanned_index, cur_scanned, estimate, scans, &peak);
+  st->ms.candidates += scan.ms();
+  // (a shift within the scan's own candidate reach is the registration's: a corridor's flat support peaks anywhere)
+  if (!peaked || (peak.t - estimate.t).norm() < 0.25 * config_.candidates.max_distance) return false;
+  FrameStats other_stats;
+  PassOutcome other = register_features(prev, cur, prediction, peak, true, &other_stats);
+  st->ms.candidates += other_stats.ms.candidates;
+  st->ms.ransac += other_stats.ms.ransac;
+  st->iterations += other_stats.iterations;
+  if (!other.have || other.stats.degenerate || other.held_directions > 0 || !other.stats.covariance.allFinite())
+    return false;
+  scan = Stopwatch();
+  CandidateIndex index(prev);
+  const double held_support = support(index, cur, estimate);
+  const double found_support = support(index, cur, other.best);
+  st->ms.candidates += scan.ms();
+  if (!(found_support > kRecoveryMargin * held_support)) return false;
+  *outcome = other;
+  st->candidates = other_stats.candidates;
+  st->plane_candidates = other_stats.plane_candidates;
+  st->passes = other_stats.passes;
+  return true;
+}
+
+// The shifts (translation_peak) of the estimate along its least observed translation (largest eigenvalue of its
+// covariance, when it has one), and of the prediction along each sensor axis and along the lines (vehicles move along
+// a sensor axis or the road; a wrong sample's rotation would hide the right shift, and where two directions are about
+// as weak the eigenvector mixes them).
 bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                                      const Mat6* covariance, const RigidTransform& prediction,
                                      RigidTransform* peak) const {
@@ -537,6 +597,15 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
     for (const auto& scan : scans) scanned = scanned || std::abs(scan.second.dot(direction)) >= kSameAxisCosine;
     if (!scanned) scans.emplace_back(prediction, direction);
   }
+  return translation_peak(index, cur, estimate, scans, peak);
+}
+
+// Each origin shifted along its direction every kWeakShiftStep inlier thresholds (at most kMaxShiftSteps per side) out
+// to the largest motion the registration accepts (registration.max_translation, at least the candidate distance),
+// scored on up to kScanLines of the scan's lines and the candidates within a quarter of the candidate distance, with
+// half a step of tolerance: true when one out-supports the estimate itself; the peak refined to a quarter step.
+bool Odometry::translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+                                const std::vector<std::pair<RigidTransform, Vec3>>& scans, RigidTransform* peak) const {
   const ScanFeatures scored = every_kth_line(cur, kScanLines);
   const double threshold = config_.ransac.inlier_threshold;
   const double range = std::max(config_.candidates.max_distance, config_.registration.max_translation);
@@ -592,14 +661,16 @@ double Odometry::support(CandidateIndex& index, const ScanFeatures& cur, const R
 }
 
 // Organize only the rows and columns downsampling keeps; while the first motion is searched at
-// registration.coarse_downsample, the rows and columns both steps need.
+// registration.coarse_downsample, or unmeasured directions are scanned there (coarser than the configured step), the
+// rows and columns both steps need.
 int Odometry::organize_step(double stamp, bool guessed) const {
   const int step = std::max(1, config_.downsample);
   const int coarse = config_.registration.coarse_downsample;
   // (the first frame's coarse features serve the next frame's first motion, guessed or not)
   const bool first_motion = (!guessed || frames_ == 0) &&
                             (!have_velocity_ || stamp - prev_stamp_ > config_.registration.max_prediction_gap);
-  return first_motion && coarse > 0 && coarse != step ? std::gcd(step, coarse) : step;
+  const bool coarse_scan = !guessed && !unmeasured_projector_.isZero() && coarse > step;
+  return (first_motion || coarse_scan) && coarse > 0 && coarse != step ? std::gcd(step, coarse) : step;
 }
 
 FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms,
@@ -648,7 +719,10 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
 
   ScanFeatures coarse_features;
   const int coarse_step = config_.registration.coarse_downsample;
-  if (!have_velocity_ && coarse_step > 0 && coarse_step != config_.downsample) {
+  // Unmeasured directions are searched (search_unmeasured) on the coarse scans when they are coarser.
+  const bool searching = have_velocity_ && !guessed && !unmeasured_projector_.isZero();
+  const bool coarse_scan = searching && coarse_step > config_.downsample && coarse_step % organized_step == 0;
+  if ((!have_velocity_ && coarse_step > 0 && coarse_step != config_.downsample) || coarse_scan) {
     stage = Stopwatch();
     coarse_features =
         extract_features(downsample(image, coarse_step / organized_step), config_.features, nullptr, 1, 0, pool_.get());
@@ -663,6 +737,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     st.registered = true;
   } else {
     const double dt = stamp - prev_stamp_;
+    const bool first_motion_frame = !have_velocity_;
     const RigidTransform prediction = guessed ? *guess : predict(stamp, &st.persistence);
     st.prediction = guessed ? "guess"
                     : have_velocity_ && config_.registration.constant_velocity ? "constant_velocity"
@@ -688,6 +763,11 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
     // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
     if (coarse_used && !(outcome.have && !outcome.stats.degenerate)) outcome = coarse;
+    if (searching) {
+      const bool coarse_ready = !prev_coarse_features_.h_lines.empty() && !coarse_features.h_lines.empty();
+      st.recovered = search_unmeasured(prev_features_, features, coarse_ready ? prev_coarse_features_ : prev_features_,
+                                       coarse_ready ? coarse_features : features, prediction, &outcome, &st);
+    }
     const RigidTransform& best = outcome.best;
     const MotionStats& best_stats = outcome.stats;
     const bool have = outcome.have;
@@ -751,12 +831,19 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
         // MAP fusion with the constant-velocity prior on the left perturbation exp(xi) * prediction: directions
         // the lines observe poorly (large covariance) stay with the prediction. Covariance (I - K) P of the Kalman
         // update with H = I, K = P (P + C)^-1: (P^-1 + C^-1)^-1, below both the prior's and the estimate's.
-        const Mat6 gain = prior * (prior + result.covariance).inverse();
+        Mat6 gain = prior * (prior + result.covariance).inverse();
+        Mat6 fused_covariance = (Mat6::Identity() - gain) * prior;
+        if (!unmeasured_projector_.isZero()) {
+          // No prior along a velocity nobody measured (its prediction is standing still): there the estimate stands.
+          const Mat6 free = Mat6::Identity() - unmeasured_projector_;
+          const Mat6 information = result.covariance.inverse();
+          fused_covariance = (free * prior.inverse() * free + information).inverse();
+          gain = fused_covariance * information;
+        }
         const Vec6 fused = gain * xi;
-        if (fused.allFinite()) {
+        if (fused.allFinite() && fused_covariance.allFinite()) {
           result.delta = apply_motion_difference(fused, prediction);
-          result.covariance = (Mat6::Identity() - gain) * prior;
-          result.covariance = 0.5 * (result.covariance + result.covariance.transpose());
+          result.covariance = 0.5 * (fused_covariance + fused_covariance.transpose());
         }
       }
       st.solver = solver_name(best_stats.best_solver);
@@ -784,6 +871,12 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     result.pose = pose_;
     last_delta_ = result.delta;
     last_held_projector_ = held_projector;
+    // A first motion held in full measured no direction of the velocity; a later frame measures what it registers.
+    // (Without constant velocity every prediction is standing still: nothing to search; a guess is a measurement.)
+    if (guessed || !reg.constant_velocity) unmeasured_projector_ = Mat6::Zero();
+    else if (first_motion_frame) unmeasured_projector_ = held_projector;
+    else unmeasured_projector_ = common_directions(unmeasured_projector_, held_projector, kUnmeasuredCosine);
+    st.unmeasured_directions = static_cast<int>(std::lround(unmeasured_projector_.trace()));
     if (st.registered)
       persistence_.add(motion_difference(result.delta, RigidTransform::identity()), dt);
     else

@@ -106,6 +106,9 @@ struct FrameStats {
   std::string prediction = "none";  // where the prediction came from: "constant_velocity", "guess" (the caller's),
                                     // "standing_still" (no velocity yet, or registration.constant_velocity off)
   std::string failure;          // why, when degenerate
+  int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
+                                  // still): searched on the next frames
+  bool recovered = false;       // this frame's motion was found by that search
   StageMilliseconds ms;
 };
 
@@ -177,6 +180,16 @@ class Odometry {
                            const RigidTransform* coarse_motion, FrameStats* st) const;
   bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                              const Mat6* covariance, const RigidTransform& prediction, RigidTransform* peak) const;
+  // The best-supported shift of each (origin, unit direction) of `scans`, when one out-supports `estimate`.
+  bool translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+                        const std::vector<std::pair<RigidTransform, Vec3>>& scans, RigidTransform* peak) const;
+  // While the velocity along unmeasured_projector_ was never measured: register from the best-supported shift of the
+  // estimate along those translations (scanned on prev_scanned / cur_scanned: the coarse scans when coarser) and take
+  // that motion instead when it observes every direction and the candidates picked near it support it clearly more
+  // (odometry.cpp). True when it did.
+  bool search_unmeasured(const ScanFeatures& prev, const ScanFeatures& cur, const ScanFeatures& prev_scanned,
+                         const ScanFeatures& cur_scanned, const RigidTransform& prediction, PassOutcome* outcome,
+                         FrameStats* st) const;
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
   // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
   double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
@@ -188,6 +201,9 @@ class Odometry {
   RigidTransform last_delta_;
   MotionPersistence persistence_;
   Mat6 last_held_projector_ = Mat6::Zero();  // onto the directions of last_delta_ that were the prediction's
+  // onto the directions of the velocity no frame has measured since the first motion was held (standing still, a
+  // guess nobody measured): searched each frame, and the motion prior does not pull towards them
+  Mat6 unmeasured_projector_ = Mat6::Zero();
   double last_dt_ = 0.0;
   double prev_stamp_ = 0.0;
   bool have_velocity_ = false;
