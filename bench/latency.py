@@ -4,6 +4,7 @@
     .venv/bin/python bench/latency.py                   # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz (300 frames) at 1, 1/100
     .venv/bin/python bench/latency.py --repeat 3 --kiss-threads 1
     .venv/bin/python bench/latency.py --threads 2       # line_odom's line fit and line-pair search on two threads
+    .venv/bin/python bench/latency.py --set registration.window=3   # any engine setting
 
 Stage times come from the engine's own stopwatch (stats["ms"]); "call" is the wall time of the Python call
 (numpy in, result out). The first frame of each run is left out (nothing to register against). KISS-ICP runs
@@ -31,7 +32,7 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import line_odom_core  # noqa: E402
-from accuracy import KISS_HINT, depth_points, kiss_available, kiss_odometry  # noqa: E402
+from accuracy import depth_points, kiss_odometry, overrides_and_kiss  # noqa: E402
 from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402
 
 ALL_LINES = 0  # the "level" of the full-resolution run with registration.max_lines = 0
@@ -135,14 +136,14 @@ def main(argv=None) -> int:
     parser.add_argument("--threads", type=int, default=1, help="line_odom's `threads` (0: one per hardware thread)")
     parser.add_argument("--no-kiss", action="store_true")
     parser.add_argument("--only", choices=("kitti", "tum"))
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="engine setting overrides (dotted names), e.g. registration.window=2")
     args = parser.parse_args(argv)
 
-    kiss = not args.no_kiss and kiss_available()
-    if not args.no_kiss and not kiss:
-        print(KISS_HINT)
-    threads = {"threads": args.threads}
+    overrides, kiss = overrides_and_kiss(parser, args)
+    threads = {**overrides, "threads": args.threads}
     print(f"line_odom_core {line_odom_core.__version__} ({line_odom_core.build_info()['flags']}), "
-          f"threads {args.threads}; KISS-ICP "
+          f"threads {args.threads}; overrides {overrides or 'none'}; KISS-ICP "
           f"{'on, ' + str(args.kiss_threads) + ' thread(s)' if kiss else 'off'}; mean ms per frame (p50 and p95 of total;"
           " steady = mean total without each run's first registration, which searches the first motion once a run"
           " (first: its mean); ratio = steady / KISS-ICP's mean; the goals are for steady frames;"

@@ -120,6 +120,8 @@ class FrameResult:
                               the motion): 0 normally; while > 0, each frame searches them (the prediction holds them
                               at zero, the motion prior does not pull towards it)
       recovered: bool         this frame's motion was found by that search
+      window_scans: int       previous scans this frame was registered against: registration.window when the last
+                              scan alone observed every direction of that motion, else 1 (0 on the first frame)
       ms: dict[str, float]    per-stage milliseconds: organize, downsample, features, candidates, ransac, total
     """
 

@@ -132,6 +132,9 @@ _ENTRIES: list[ConfigEntry] = [
                 "this budget, and the next scan is fitted only on the rows and columns that step keeps (each line "
                 "still fitted to every point of its row or column; neighbouring rows on one surface give nearly the "
                 "same intersections). 0 = all", 0, 10000000),
+    ConfigEntry("registration.window", int, 1, "previous scans each scan is registered against: their lines and "
+                "planes moved into the last scan's frame by the estimated motions, kept only when the last scan alone "
+                "observes every direction of the result (1 = the last scan only, paper §6.3)", 1, 10),
     ConfigEntry("registration.first_motion_pairs_per_line", int, 0, "while there is no motion guess (the first "
                 "motion after start or reset, searched from standing still), keep the k closest partners of each line "
                 "within candidates.max_distance (0 = all of them, as in the paper; KITTI: 8, at half the cost)", 0,

@@ -870,6 +870,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["failure"] = s.failure;
   d["unmeasured_directions"] = s.unmeasured_directions;
   d["recovered"] = s.recovered;
+  d["window_scans"] = s.window_scans;
   d["ms"] = ms;
   return d;
 }

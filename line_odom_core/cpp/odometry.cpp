@@ -177,6 +177,10 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   persistence_ = MotionPersistence(config_.registration.persistence_window);
   if (config_.registration.first_motion_pairs_per_line < 0)
     throw std::invalid_argument("registration.first_motion_pairs_per_line: expected >= 0");
+  if (config_.registration.window < 1 || config_.registration.window > 10)
+    throw std::invalid_argument("registration.window: expected 1 to 10 scans, got " +
+                                std::to_string(config_.registration.window));
+  window_ = FeatureWindow(config_.registration.window);
   if (config_.threads < 0 || config_.threads > 256)
     throw std::invalid_argument("threads: expected 0 (one per hardware thread) to 256, got " +
                                 std::to_string(config_.threads));
@@ -197,6 +201,7 @@ void Odometry::reset(const RigidTransform& pose) {
   fit_step_ = 1;
   prev_features_ = ScanFeatures{};
   prev_coarse_features_ = ScanFeatures{};
+  window_.clear();
 }
 
 RigidTransform Odometry::predict(double stamp, Vec6* persistence) const {
@@ -280,6 +285,89 @@ template std::vector<Vec3> Odometry::downsampled_points(const float*, std::size_
 template std::vector<Vec3> Odometry::downsampled_points(const double*, std::size_t, std::size_t,
                                                         const std::int32_t*) const;
 
+RefineOptions Odometry::refine_options() const {
+  RefineOptions ropt;
+  ropt.iterations = config_.ransac.refine_iterations;
+  ropt.line_threshold = config_.ransac.inlier_threshold;
+  ropt.plane_angle_threshold = config_.ransac.plane_angle_threshold_deg * kPi / 180.0;
+  ropt.plane_distance_threshold = config_.ransac.plane_distance_threshold;
+  ropt.huber_delta = config_.ransac.huber_delta > 0.0 ? config_.ransac.huber_delta : config_.ransac.inlier_threshold;
+  ropt.degeneracy_threshold = config_.ransac.degeneracy_threshold;
+  return ropt;
+}
+
+// registration.window: the scan registered against the last scans' lines (feature_window.hpp), kept when every
+// direction of that motion is observed by the pairs with the last scan alone; else (a sparse highway, a corridor,
+// where the older scans' lines make the motion along the road look observed when it is not) against the last scan.
+PassOutcome Odometry::register_on_window(const ScanFeatures& cur, const RigidTransform& prediction,
+                                         FrameStats* st) const {
+  if (window_.size() > 1 && unmeasured_projector_.isZero()) {
+    FrameStats window_stats = *st;
+    PassOutcome on_window = register_features(window_.merged(), cur, prediction, prediction, true, &window_stats);
+    const bool kept = on_window.have && !on_window.stats.degenerate && on_window.held_directions == 0 &&
+                      observes_every_direction(prev_features_, cur, on_window.best, &window_stats);
+    st->ms = window_stats.ms;
+    st->iterations = window_stats.iterations;
+    if (kept) {
+      *st = window_stats;
+      st->window_scans = static_cast<int>(window_.size());
+      return on_window;
+    }
+  }
+  return register_features(prev_features_, cur, prediction, prediction, true, st);
+}
+
+// Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few chance pairs
+// within the threshold, whatever motion they are fitted to. The share must be shown, not just reached: two binomial
+// standard deviations above registration.min_inlier_ratio (a few dozen candidates prove little).
+bool Odometry::too_few_pairs_meet(const Correspondences& corr, const LinePairTable& table, const RigidTransform& T,
+                                  int* inliers) const {
+  score_motion(table, T, config_.ransac.inlier_threshold, RefineOptions{}.min_line_sine, inliers);
+  const double pairs = static_cast<double>(corr.lines_a.size());
+  const double r = config_.registration.min_inlier_ratio;
+  return pairs > 0.0 && r > 0.0 && *inliers < r * pairs + 2.0 * std::sqrt(pairs * r * (1.0 - r));
+}
+
+// The axes a push along which keeps the inliers (refine.hpp: axis_support): motions the intersections do not observe,
+// however well-conditioned the coincidental pairs make J^T W J look.
+int Odometry::unobserved_axes_at(const LinePairTable& table, const RigidTransform& T) const {
+  const RegistrationOptions& reg = config_.registration;
+  if (!(reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0)) return 0;
+  AxisShares shares;
+  axis_support(table, T, config_.ransac.inlier_threshold, RefineOptions{}.min_line_sine, nullptr, &shares);
+  int axes = 0;
+  for (int axis = 0; axis < 6; ++axis)
+    if ((reg.max_axis_support < 1.0 && shares.weight[axis] >= reg.max_axis_support) ||
+        (reg.max_axis_pair_support < 1.0 && shares.pairs[axis] >= reg.max_axis_pair_support))
+      axes |= 1 << axis;
+  return axes;
+}
+
+// Whether the pairs of `prev` and `cur` alone (picked under T at the last pass's candidate distance) observe every
+// direction of T: a well-conditioned refinement, enough of them meeting, no axis a push along which keeps them.
+bool Odometry::observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
+                                        FrameStats* st) const {
+  Stopwatch stage;
+  const RegistrationOptions& reg = config_.registration;
+  CandidateOptions copt = config_.candidates;
+  const double last_pass_scale = std::pow(reg.pass_distance_scale, reg.passes - 1);
+  copt.max_distance *= last_pass_scale;
+  copt.plane_max_distance *= last_pass_scale;
+  Correspondences corr;
+  CandidateStats cstats;
+  CandidateIndex index(prev);
+  build_candidates(index, cur, T, copt, &corr, &cstats, pool_.get());
+  st->ms.candidates += stage.ms();
+  stage = Stopwatch();
+  const LinePairTable table(corr);
+  RefineResult refined;
+  int inliers = 0;
+  const bool observed = refine_motion(corr, table, T, refine_options(), &refined) && !refined.degenerate &&
+                        !too_few_pairs_meet(corr, table, T, &inliers) && unobserved_axes_at(table, T) == 0;
+  st->ms.ransac += stage.ms();
+  return observed;
+}
+
 PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeatures& cur,
                                       const RigidTransform& prediction, const RigidTransform& start,
                                       bool limit_pairs, FrameStats* st) const {
@@ -294,13 +382,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   LinePairTable table;  // corr's line pairs, for the pass and the checks after the last one
   CandidateStats cstats;
   std::string failure;
-  RefineOptions ropt;
-  ropt.iterations = config_.ransac.refine_iterations;
-  ropt.line_threshold = config_.ransac.inlier_threshold;
-  ropt.plane_angle_threshold = config_.ransac.plane_angle_threshold_deg * kPi / 180.0;
-  ropt.plane_distance_threshold = config_.ransac.plane_distance_threshold;
-  ropt.huber_delta = config_.ransac.huber_delta > 0.0 ? config_.ransac.huber_delta : config_.ransac.inlier_threshold;
-  ropt.degeneracy_threshold = config_.ransac.degeneracy_threshold;
+  const RefineOptions ropt = refine_options();
   auto sane = [&](const RigidTransform& T) {
     if (!T.is_finite()) return false;
     const RigidTransform deviation = prediction.inverse() * T;
@@ -397,29 +479,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     failure.clear();
   }
 
-  const double thr = config_.ransac.inlier_threshold;
-  // Precise lines meet their partners under the right motion; noisy ones leave only the sample and a few chance
-  // pairs within the threshold, whatever motion they are fitted to. The share must be shown, not just reached:
-  // two binomial standard deviations above min_inlier_ratio (a few dozen candidates prove little).
-  auto too_few_meet = [&](const RigidTransform& T, int* inliers) {
-    score_motion(table, T, thr, ropt.min_line_sine, inliers);
-    const double pairs = static_cast<double>(corr.lines_a.size());
-    const double r = reg.min_inlier_ratio;
-    return pairs > 0.0 && r > 0.0 && *inliers < r * pairs + 2.0 * std::sqrt(pairs * r * (1.0 - r));
-  };
-  // The axes a push along which keeps the inliers (refine.hpp: axis_support): motions the intersections do not
-  // observe, however well-conditioned the coincidental pairs make J^T W J look.
-  auto unobserved_axes = [&](const RigidTransform& T) {
-    if (!(reg.max_axis_support < 1.0 || reg.max_axis_pair_support < 1.0)) return 0;
-    AxisShares shares;
-    axis_support(table, T, thr, ropt.min_line_sine, nullptr, &shares);
-    int axes = 0;
-    for (int axis = 0; axis < 6; ++axis)
-      if ((reg.max_axis_support < 1.0 && shares.weight[axis] >= reg.max_axis_support) ||
-          (reg.max_axis_pair_support < 1.0 && shares.pairs[axis] >= reg.max_axis_pair_support))
-        axes |= 1 << axis;
-    return axes;
-  };
+  auto too_few_meet = [&](const RigidTransform& T, int* inliers) { return too_few_pairs_meet(corr, table, T, inliers); };
+  auto unobserved_axes = [&](const RigidTransform& T) { return unobserved_axes_at(table, T); };
   int inliers = 0;
   int axes = 0;
   if (have && !best_stats.degenerate) {
@@ -757,8 +818,9 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       coarse_used = coarse.have && !coarse.stats.degenerate;
     }
     // No velocity yet: from the coarse motion (or standing still) and from other starts (first_motion).
+    st.window_scans = 1;
     PassOutcome outcome =
-        have_velocity_ ? register_features(prev_features_, features, prediction, prediction, true, &st)
+        have_velocity_ ? register_on_window(features, prediction, &st)
                        : first_motion(prev_features_, features, prediction, coarse_used ? &coarse.best : nullptr, &st);
     // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
     // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
@@ -885,6 +947,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     have_velocity_ = true;
   }
 
+  if (config_.registration.window > 1) window_.push(features, result.delta, st.registered && !st.degenerate);
   prev_features_ = std::move(features);
   prev_coarse_features_ = std::move(coarse_features);
   prev_stamp_ = stamp;
@@ -932,6 +995,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.pass_distance_scale", c.registration.pass_distance_scale);
   visit("registration.max_lines", c.registration.max_lines);
   visit("registration.first_motion_pairs_per_line", c.registration.first_motion_pairs_per_line);
+  visit("registration.window", c.registration.window);
   visit("registration.min_inliers", c.registration.min_inliers);
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);

@@ -14,8 +14,10 @@
 
 #include "candidates.hpp"
 #include "feature_extraction.hpp"
+#include "feature_window.hpp"
 #include "motion_estimation.hpp"
 #include "motion_persistence.hpp"
+#include "refine.hpp"
 #include "range_image.hpp"
 #include "scan_features.hpp"
 #include "types.hpp"
@@ -46,6 +48,7 @@ struct RegistrationOptions {
   double motion_prior_rotation_sigma_deg = 0.5;
   int max_lines = 3000;                 // lines registered per scan: past this, those of every s-th row and column
                                         // (line_selection.hpp); 0: all
+  int window = 1;                       // previous scans registered against (feature_window.hpp); 1: the last one
   int first_motion_pairs_per_line = 0;  // no motion guess yet: the k closest partners of each line (0: all within
                                         // candidates.max_distance, paper §6.3)
   int coarse_downsample = 6;            // no velocity yet: register at this step first (0 / = downsample: off)
@@ -109,6 +112,7 @@ struct FrameStats {
   int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
                                   // still): searched on the next frames
   bool recovered = false;       // this frame's motion was found by that search
+  int window_scans = 0;         // previous scans the motion was registered against (registration.window; 0: none)
   StageMilliseconds ms;
 };
 
@@ -178,6 +182,13 @@ class Odometry {
   // (odometry.cpp); the result the candidates picked near it support most.
   PassOutcome first_motion(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                            const RigidTransform* coarse_motion, FrameStats* st) const;
+  PassOutcome register_on_window(const ScanFeatures& cur, const RigidTransform& prediction, FrameStats* st) const;
+  bool observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
+                                FrameStats* st) const;
+  bool too_few_pairs_meet(const Correspondences& corr, const LinePairTable& table, const RigidTransform& T,
+                          int* inliers) const;
+  int unobserved_axes_at(const LinePairTable& table, const RigidTransform& T) const;
+  RefineOptions refine_options() const;
   bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                              const Mat6* covariance, const RigidTransform& prediction, RigidTransform* peak) const;
   // The best-supported shift of each (origin, unit direction) of `scans`, when one out-supports `estimate`.
@@ -211,6 +222,7 @@ class Odometry {
   int fit_step_ = 1;  // rows and columns the next scan's lines are fitted on (line_selection.hpp)
   ScanFeatures prev_features_;
   ScanFeatures prev_coarse_features_;
+  FeatureWindow window_;  // the last registration.window scans' features, in the previous scan's frame
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 
