@@ -870,6 +870,8 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["failure"] = s.failure;
   d["unmeasured_directions"] = s.unmeasured_directions;
   d["recovered"] = s.recovered;
+  d["turn_searched"] = s.turn_searched;
+  d["turn_recovered"] = s.turn_recovered;
   d["window_scans"] = s.window_scans;
   d["ms"] = ms;
   return d;

@@ -1,6 +1,7 @@
 #include "odometry.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/QR>
 
 #include <algorithm>
 #include <array>
@@ -33,6 +34,8 @@ constexpr double kUnmeasuredCosine = 0.5;  // a direction not measured stays so 
 constexpr double kUnmeasuredTranslation = 0.5;  // an unmeasured direction this much (squared) a translation is scanned
 constexpr double kRecoveryMargin = 1.5;  // the support a motion found along unmeasured directions must have, in units
                                          // of the held estimate's (measured: docs/NODE.md "The first motion")
+constexpr double kHeldRotationCosine = 0.5;  // held directions within 60 deg of a rotation hold a turn (xi: m, rad;
+                                             // KITTI 04's held forward motion: within 2 deg of the x axis)
 constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (every k-th): the same peaks on KITTI
                                          // as all 3000, at a fifth of the cost (docs/RESULTS.md)
 
@@ -58,19 +61,48 @@ ScanFeatures every_kth_line(const ScanFeatures& features, std::size_t max_lines)
   return out;
 }
 
-// The up direction of the scan: the normal of its best-supported plane within 45 degrees of the sensor's z axis
-// (the ground of a LiDAR mounted upright or tilted), else the z axis.
-Vec3 ground_up(const ScanFeatures& features) {
-  Vec3 up = Vec3::UnitZ();
+// The ground of the scan: its best-supported plane within 45 degrees of the sensor's z axis (a LiDAR mounted upright
+// or tilted), its normal up; false when there is none.
+bool ground_plane(const ScanFeatures& features, Plane* ground) {
   int best = 0;
   for (const PlaneFeature& plane : features.planes) {
     const Vec3 n = plane.plane.n.normalized();
     if (plane.support > best && std::abs(n.z()) > std::sqrt(0.5)) {
       best = plane.support;
-      up = n.z() > 0.0 ? n : Vec3(-n);
+      const Plane unit = plane.plane.normalized();
+      *ground = n.z() > 0.0 ? unit : Plane{-unit.n, -unit.delta};
     }
   }
-  return up;
+  return best > 0;
+}
+
+// The up direction of the scan: the normal of its ground (ground_plane), else the z axis.
+Vec3 ground_up(const ScanFeatures& features) {
+  Plane ground;
+  return ground_plane(features, &ground) ? ground.n : Vec3::UnitZ();
+}
+
+// The scan without the lines that lie within `height` of `ground` (both endpoints): two of them meet under any turn
+// about its normal, so they say nothing about the heading.
+ScanFeatures lines_off_ground(const ScanFeatures& features, const Plane& ground, double height) {
+  ScanFeatures out;
+  out.planes = features.planes;
+  out.cluster_directions = features.cluster_directions;
+  auto on_ground = [&](const Vec3& p) { return std::abs(ground.n.dot(p) + ground.delta) <= height; };
+  for (const auto& [lines, kept] : {std::pair{&features.h_lines, &out.h_lines}, {&features.v_lines, &out.v_lines}})
+    for (const LineFeature& line : *lines)
+      if (!(on_ground(line.segment.a) && on_ground(line.segment.b))) kept->push_back(line);
+  return out;
+}
+
+// The median distance of the scan's line midpoints from the sensor: how far a turn moves a typical line, per radian.
+double median_line_range(const ScanFeatures& features) {
+  std::vector<double> ranges;
+  for (const auto* lines : {&features.h_lines, &features.v_lines})
+    for (const LineFeature& line : *lines) ranges.push_back((0.5 * (line.segment.a + line.segment.b)).norm());
+  if (ranges.empty()) return 1.0;
+  std::nth_element(ranges.begin(), ranges.begin() + ranges.size() / 2, ranges.end());
+  return std::max(ranges[ranges.size() / 2], 1e-3);
 }
 
 // The horizontal direction (in the plane normal to `up`, ground_up) along which the scan's lines run most, by length
@@ -114,6 +146,29 @@ Mat6 common_directions(const Mat6& a, const Mat6& b, double cosine) {
     if (es.eigenvalues()(k) >= cosine * cosine)
       out += es.eigenvectors().col(k) * es.eigenvectors().col(k).transpose();
   return out;
+}
+
+// The motions of a support scan (support_peak): shifted along an axis, or turned about it through the current scan's
+// origin (the sensor turned in place: T_prev_curr keeps its translation).
+RigidTransform shift_motion(const RigidTransform& T, const Vec3& axis, double amount) {
+  RigidTransform out = T;
+  out.t += amount * axis;
+  return out;
+}
+
+RigidTransform turn_motion(const RigidTransform& T, const Vec3& axis, double amount) {
+  RigidTransform out = T;
+  out.R = T.R * Eigen::AngleAxisd(amount, axis).toRotationMatrix();
+  return out;
+}
+
+// The orthogonal projector onto the span of the (independent) columns of `basis`.
+Mat6 subspace_projector(const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis) {
+  if (basis.cols() == 0) return Mat6::Zero();
+  const Eigen::HouseholderQR<Eigen::Matrix<double, 6, Eigen::Dynamic>> qr(basis);
+  const Eigen::Matrix<double, 6, Eigen::Dynamic> q =
+      qr.householderQ() * Eigen::Matrix<double, 6, Eigen::Dynamic>::Identity(6, basis.cols());
+  return q * q.transpose();
 }
 
 class Stopwatch {
@@ -532,6 +587,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     have = true;
     out.held_directions = partial.locked_directions;
     out.held_sensitivity = partial.held_sensitivity;
+    out.held_projector = subspace_projector(partial.locked_basis.leftCols(partial.locked_directions));
     failure = "partly unobserved motion: " + std::to_string(partial.locked_directions) +
               " of 6 directions held by the motion model";
     break;
@@ -616,16 +672,58 @@ bool Odometry::search_unmeasured(const ScanFeatures& prev, const ScanFeatures& c
   st->ms.candidates += scan.ms();
   // (a shift within the scan's own candidate reach is the registration's: a corridor's flat support peaks anywhere)
   if (!peaked || (peak.t - estimate.t).norm() < 0.25 * config_.candidates.max_distance) return false;
+  return adopt_if_better(prev, cur, prediction, estimate, peak, outcome, st);
+}
+
+// The turn rate changed since the last frame (a robot reversing its turn, a swung sensor): the prediction's heading
+// is off by the whole change, at 10-20 m a 10 degree error moves the lines 1.7-3.5 m, past the candidates' reach, and
+// the registration fails or holds the rotation at the wrong prediction (docs/NODE.md "Turns"). Such a frame scans
+// the heading of its estimate about the ground's up axis over registration.max_rotation_deg (support_peak), each step
+// moving the lines at the scan's median range as far as a step of the shift scan, and registers from the peak. A frame
+// that holds only translations (a highway's forward motion) is not searched.
+bool Odometry::search_turn(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
+                           PassOutcome* outcome, FrameStats* st) const {
+  const bool registered = outcome->have && !outcome->stats.degenerate && outcome->stats.covariance.allFinite();
+  if (registered) {
+    Mat6 rotations = Mat6::Zero();
+    rotations.bottomRightCorner<3, 3>().setIdentity();
+    if (common_directions(outcome->held_projector, rotations, kHeldRotationCosine).isZero()) return false;
+  }
+  st->turn_searched = true;
+  const RigidTransform& estimate = registered ? outcome->best : prediction;
+  Stopwatch scan;
+  const double threshold = config_.ransac.inlier_threshold;
+  const double lever = median_line_range(cur);
+  const double range = config_.registration.max_rotation_deg * kPi / 180.0;
+  const double step = std::max(kWeakShiftStep * threshold / lever, range / kMaxShiftSteps);
+  const int steps = static_cast<int>(range / step + 1e-9);
+  const double tolerance = 0.5 * step * lever / threshold;
+  Plane ground;
+  const bool level = ground_plane(cur, &ground);
+  // (ground lines meet within the tolerance at every heading when each is within half of it of the plane)
+  const ScanFeatures scored = level ? lines_off_ground(cur, ground, 0.5 * tolerance * threshold) : ScanFeatures{};
+  CandidateIndex index(prev);
+  RigidTransform peak;
+  const bool peaked = steps > 0 && support_peak(index, level ? scored : cur, estimate,
+                                                {{estimate, level ? ground.n : Vec3::UnitZ()}}, turn_motion, step,
+                                                steps, tolerance, &peak);
+  st->ms.candidates += scan.ms();
+  return peaked && adopt_if_better(prev, cur, prediction, estimate, peak, outcome, st);
+}
+
+bool Odometry::adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
+                               const RigidTransform& held, const RigidTransform& start, PassOutcome* outcome,
+                               FrameStats* st) const {
   FrameStats other_stats;
-  PassOutcome other = register_features(prev, cur, prediction, peak, true, &other_stats);
+  PassOutcome other = register_features(prev, cur, prediction, start, true, &other_stats);
   st->ms.candidates += other_stats.ms.candidates;
   st->ms.ransac += other_stats.ms.ransac;
   st->iterations += other_stats.iterations;
   if (!other.have || other.stats.degenerate || other.held_directions > 0 || !other.stats.covariance.allFinite())
     return false;
-  scan = Stopwatch();
+  Stopwatch scan;
   CandidateIndex index(prev);
-  const double held_support = support(index, cur, estimate);
+  const double held_support = support(index, cur, held);
   const double found_support = support(index, cur, other.best);
   st->ms.candidates += scan.ms();
   if (!(found_support > kRecoveryMargin * held_support)) return false;
@@ -663,16 +761,23 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
 
 // Each origin shifted along its direction every kWeakShiftStep inlier thresholds (at most kMaxShiftSteps per side) out
 // to the largest motion the registration accepts (registration.max_translation, at least the candidate distance),
-// scored on up to kScanLines of the scan's lines and the candidates within a quarter of the candidate distance, with
-// half a step of tolerance: true when one out-supports the estimate itself; the peak refined to a quarter step.
+// scored with half a step of tolerance (support_peak).
 bool Odometry::translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                                 const std::vector<std::pair<RigidTransform, Vec3>>& scans, RigidTransform* peak) const {
-  const ScanFeatures scored = every_kth_line(cur, kScanLines);
   const double threshold = config_.ransac.inlier_threshold;
   const double range = std::max(config_.candidates.max_distance, config_.registration.max_translation);
   const double step = std::max(kWeakShiftStep * threshold, range / kMaxShiftSteps);
   const int steps = static_cast<int>(range / step + 1e-9);
-  const double tolerance = 0.5 * step / threshold;
+  return support_peak(index, cur, estimate, scans, shift_motion, step, steps, 0.5 * step / threshold, peak);
+}
+
+// Each origin moved along its axis (`move`) every `step` out to `steps` per side, scored on up to kScanLines of the
+// scan's lines and the candidates within a quarter of the candidate distance, with `tolerance` inlier thresholds:
+// true when one out-supports the estimate itself; the peak refined to a quarter step.
+bool Odometry::support_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+                            const std::vector<std::pair<RigidTransform, Vec3>>& scans, MoveMotion move, double step,
+                            int steps, double tolerance, RigidTransform* peak) const {
+  const ScanFeatures scored = every_kth_line(cur, kScanLines);
   const double reach = 0.25 * config_.candidates.max_distance;
   double best = support(index, scored, estimate, tolerance, reach);
   const double estimate_tolerant = best;
@@ -680,12 +785,11 @@ bool Odometry::translation_peak(CandidateIndex& index, const ScanFeatures& cur, 
   for (const auto& [origin, axis] : scans) {
     for (int k = -steps; k <= steps; ++k) {
       if (k == 0) continue;
-      RigidTransform shifted = origin;
-      shifted.t += k * step * axis;
-      const double s = support(index, scored, shifted, tolerance, reach);
+      const RigidTransform moved = move(origin, axis, k * step);
+      const double s = support(index, scored, moved, tolerance, reach);
       if (s > best) {
         best = s;
-        *peak = shifted;
+        *peak = moved;
         peak_axis = axis;
       }
     }
@@ -699,12 +803,11 @@ bool Odometry::translation_peak(CandidateIndex& index, const ScanFeatures& cur, 
     const RigidTransform centre = *peak;
     double centre_support = support(index, scored, centre, fine_tolerance, reach);
     for (const double side : {-1.0, 1.0}) {
-      RigidTransform shifted = centre;
-      shifted.t += side * fine_step * peak_axis;
-      const double s = support(index, scored, shifted, fine_tolerance, reach);
+      const RigidTransform moved = move(centre, peak_axis, side * fine_step);
+      const double s = support(index, scored, moved, fine_tolerance, reach);
       if (s > centre_support) {
         centre_support = s;
-        *peak = shifted;
+        *peak = moved;
       }
     }
   }
@@ -830,6 +933,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       st.recovered = search_unmeasured(prev_features_, features, coarse_ready ? prev_coarse_features_ : prev_features_,
                                        coarse_ready ? coarse_features : features, prediction, &outcome, &st);
     }
+    if (!first_motion_frame) st.turn_recovered = search_turn(prev_features_, features, prediction, &outcome, &st);
     const RigidTransform& best = outcome.best;
     const MotionStats& best_stats = outcome.stats;
     const bool have = outcome.have;

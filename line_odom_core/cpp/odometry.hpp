@@ -112,6 +112,8 @@ struct FrameStats {
   int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
                                   // still): searched on the next frames
   bool recovered = false;       // this frame's motion was found by that search
+  bool turn_searched = false;   // the registration failed or held a rotation: the heading was scanned (search_turn)
+  bool turn_recovered = false;  // ... and the motion registered from the best-supported heading replaced it
   int window_scans = 0;         // previous scans the motion was registered against (registration.window; 0: none)
   StageMilliseconds ms;
 };
@@ -131,6 +133,7 @@ struct PassOutcome {
   std::string failure;
   int held_directions = 0;  // of a partial estimate: directions of xi held at the prediction
   Mat6 held_sensitivity = Mat6::Zero();  // ... and how it moves with the prediction (RefineResult)
+  Mat6 held_projector = Mat6::Zero();    // ... onto those directions (xi coordinates)
   // Searched without a guess: the first pass's loser of the RANSAC sample and the refined guess, when the two
   // are different motions (the candidates, picked near the guess, favour it: odometry.cpp first_motion).
   bool have_rival = false;
@@ -194,6 +197,13 @@ class Odometry {
   // The best-supported shift of each (origin, unit direction) of `scans`, when one out-supports `estimate`.
   bool translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                         const std::vector<std::pair<RigidTransform, Vec3>>& scans, RigidTransform* peak) const;
+  // A motion moved by an amount along a unit axis (shifted, or turned about it).
+  using MoveMotion = RigidTransform (*)(const RigidTransform&, const Vec3&, double);
+  // The best-supported of the motions `move` gives each (origin, unit axis) of `scans` every `step` out to `steps` per
+  // side, scored with `tolerance` inlier thresholds, when one out-supports `estimate`.
+  bool support_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+                    const std::vector<std::pair<RigidTransform, Vec3>>& scans, MoveMotion move, double step, int steps,
+                    double tolerance, RigidTransform* peak) const;
   // While the velocity along unmeasured_projector_ was never measured: register from the best-supported shift of the
   // estimate along those translations (scanned on prev_scanned / cur_scanned: the coarse scans when coarser) and take
   // that motion instead when it observes every direction and the candidates picked near it support it clearly more
@@ -201,6 +211,16 @@ class Odometry {
   bool search_unmeasured(const ScanFeatures& prev, const ScanFeatures& cur, const ScanFeatures& prev_scanned,
                          const ScanFeatures& cur_scanned, const RigidTransform& prediction, PassOutcome* outcome,
                          FrameStats* st) const;
+  // When the registration failed, or holds a direction with a rotation in it: register from the best-supported
+  // heading of the estimate about the ground's up axis and take that motion instead when it observes every direction
+  // and the candidates picked near it support it clearly more (odometry.cpp). True when it did.
+  bool search_turn(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
+                   PassOutcome* outcome, FrameStats* st) const;
+  // Registers from `start` and replaces *outcome (held: `held`) with that motion when it observes every direction and
+  // the candidates picked near it support it kRecoveryMargin times as much as `held`. True when it did.
+  bool adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
+                       const RigidTransform& held, const RigidTransform& start, PassOutcome* outcome,
+                       FrameStats* st) const;
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
   // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
   double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
