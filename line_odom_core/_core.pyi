@@ -120,8 +120,9 @@ class FrameResult:
                               the motion): 0 normally; while > 0, each frame searches them (the prediction holds them
                               at zero, the motion prior does not pull towards it)
       recovered: bool         this frame's motion was found by that search
-      turn_searched: bool     the registration failed or held a direction with a rotation in it: the heading was
-                              scanned about the ground's up axis and registered from the best-supported one
+      turn_searched: bool     the registration failed, held a direction with a rotation in it or kept less than a
+                              third of the last frame's inlier weight: the heading was scanned about the ground's up
+                              axis and registered from the best-supported one
       turn_recovered: bool    ... and that motion replaced the frame's: it observes every direction and the candidates
                               picked near it support it 1.5 times as much
       window_scans: int       previous scans this frame was registered against: registration.window when the last

@@ -36,6 +36,9 @@ constexpr double kRecoveryMargin = 1.5;  // the support a motion found along unm
                                          // of the held estimate's (measured: docs/NODE.md "The first motion")
 constexpr double kHeldRotationCosine = 0.5;  // held directions within 60 deg of a rotation hold a turn (xi: m, rad;
                                              // KITTI 04's held forward motion: within 2 deg of the x axis)
+constexpr double kSupportDrop = 1.0 / 3.0;  // a frame with less of the last one's inlier weight is checked for a turn
+                                            // (KITTI, TUM, the simulated street: > 0.48 of it; a 20 deg wrong heading
+                                            // on the simulated street: 0.14-0.29)
 constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (every k-th): the same peaks on KITTI
                                          // as all 3000, at a fifth of the cost (docs/RESULTS.md)
 
@@ -248,6 +251,7 @@ void Odometry::reset(const RigidTransform& pose) {
   last_delta_ = RigidTransform::identity();
   last_held_projector_ = Mat6::Zero();
   unmeasured_projector_ = Mat6::Zero();
+  last_inlier_weight_ = 0.0;
   persistence_.clear();
   last_dt_ = 0.0;
   prev_stamp_ = 0.0;
@@ -679,15 +683,20 @@ bool Odometry::search_unmeasured(const ScanFeatures& prev, const ScanFeatures& c
 // is off by the whole change, at 10-20 m a 10 degree error moves the lines 1.7-3.5 m, past the candidates' reach, and
 // the registration fails or holds the rotation at the wrong prediction (docs/NODE.md "Turns"). Such a frame scans
 // the heading of its estimate about the ground's up axis over registration.max_rotation_deg (support_peak), each step
-// moving the lines at the scan's median range as far as a step of the shift scan, and registers from the peak. A frame
-// that holds only translations (a highway's forward motion) is not searched.
+// moving the lines at the scan's median range as far as a step of the shift scan, and registers from the peak. So does
+// a frame that kept less than kSupportDrop of the last frame's support (a wrong heading where a few coincidental pairs
+// observe every direction). A frame that holds only translations (a highway's forward motion) is not searched.
 bool Odometry::search_turn(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                            PassOutcome* outcome, FrameStats* st) const {
   const bool registered = outcome->have && !outcome->stats.degenerate && outcome->stats.covariance.allFinite();
   if (registered) {
     Mat6 rotations = Mat6::Zero();
     rotations.bottomRightCorner<3, 3>().setIdentity();
-    if (common_directions(outcome->held_projector, rotations, kHeldRotationCosine).isZero()) return false;
+    const bool holds_rotation = !common_directions(outcome->held_projector, rotations, kHeldRotationCosine).isZero();
+    // A registration that kept a small share of the last frame's support (the walls' pairs out of reach, only the
+    // ground's meeting) may have settled on a wrong heading, whatever it holds.
+    const bool lost_support = outcome->stats.inlier_weight < kSupportDrop * last_inlier_weight_;
+    if (!holds_rotation && !lost_support) return false;
   }
   st->turn_searched = true;
   const RigidTransform& estimate = registered ? outcome->best : prediction;
@@ -1037,6 +1046,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     result.pose = pose_;
     last_delta_ = result.delta;
     last_held_projector_ = held_projector;
+    last_inlier_weight_ = st.registered && !st.degenerate ? st.inlier_weight : 0.0;
     // A first motion held in full measured no direction of the velocity; a later frame measures what it registers.
     // (Without constant velocity every prediction is standing still: nothing to search; a guess is a measurement.)
     if (guessed || !reg.constant_velocity) unmeasured_projector_ = Mat6::Zero();

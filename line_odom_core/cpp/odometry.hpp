@@ -211,9 +211,10 @@ class Odometry {
   bool search_unmeasured(const ScanFeatures& prev, const ScanFeatures& cur, const ScanFeatures& prev_scanned,
                          const ScanFeatures& cur_scanned, const RigidTransform& prediction, PassOutcome* outcome,
                          FrameStats* st) const;
-  // When the registration failed, or holds a direction with a rotation in it: register from the best-supported
-  // heading of the estimate about the ground's up axis and take that motion instead when it observes every direction
-  // and the candidates picked near it support it clearly more (odometry.cpp). True when it did.
+  // When the registration failed, holds a direction with a rotation in it or kept little of the last frame's support:
+  // register from the best-supported heading of the estimate about the ground's up axis and take that motion instead
+  // when it observes every direction and the candidates picked near it support it clearly more (odometry.cpp). True
+  // when it did.
   bool search_turn(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                    PassOutcome* outcome, FrameStats* st) const;
   // Registers from `start` and replaces *outcome (held: `held`) with that motion when it observes every direction and
@@ -235,6 +236,7 @@ class Odometry {
   // onto the directions of the velocity no frame has measured since the first motion was held (standing still, a
   // guess nobody measured): searched each frame, and the motion prior does not pull towards them
   Mat6 unmeasured_projector_ = Mat6::Zero();
+  double last_inlier_weight_ = 0.0;  // of the last frame when it was registered in full (search_turn), else 0
   double last_dt_ = 0.0;
   double prev_stamp_ = 0.0;
   bool have_velocity_ = false;
