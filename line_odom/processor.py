@@ -587,7 +587,8 @@ class OdometryProcessor:
                           latency_ms_p95=float(np.percentile(lat, 95)))
         for key in (
                 "solver", "inliers", "degenerate", "held_directions", "candidates", "h_lines", "v_lines",
-                "registered_lines", "planes", "prediction", "unmeasured_directions", "window_scans"):
+                "registered_lines", "planes", "prediction", "unmeasured_directions", "window_scans", "turn_searched",
+                "turn_recovered"):
             if key in stats:
                 values[key] = stats[key]
         if "persistence" in stats:  # the share of the last motion the prediction carried, x y z rx ry rz
