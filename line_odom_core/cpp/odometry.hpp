@@ -112,7 +112,8 @@ struct FrameStats {
   int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
                                   // still): searched on the next frames
   bool recovered = false;       // this frame's motion was found by that search
-  bool turn_searched = false;   // the registration failed or held a rotation: the heading was scanned (search_turn)
+  bool turn_searched = false;   // the registration failed, held a rotation or kept under a third of the last frame's
+                                // inlier weight: the heading was scanned (search_turn)
   bool turn_recovered = false;  // ... and the motion registered from the best-supported heading replaced it
   int window_scans = 0;         // previous scans the motion was registered against (registration.window; 0: none)
   StageMilliseconds ms;
