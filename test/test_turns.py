@@ -1,12 +1,13 @@
 """Abrupt turn-rate changes: the sensor drives 0.5 m a frame along the simulated street while its yaw rate flips sign
 every 3 frames (a robot reversing its turn, a swung sensor), 1 cm range noise. Each frame is registered from a
 prediction (constant velocity, or the caller's guess) whose heading is off by the whole change: 20 deg at a
-10 deg/frame flip, which moves the lines 1.7-3.5 m at 10-20 m, past the candidates' 2 m. Without the turn search
+10 deg/frame flip, which moves the lines 3.5-7 m at 10-20 m, past the candidates' 2 m. Without the turn search
 (odometry.cpp search_turn) such frames were held at the wrong prediction in 3-4 of 6 directions or registered near it:
 HDL-64E at 1/36 rotation error mean 3.88 deg, max 20, 11 degenerate frames of 59; VLP-16 3.85 deg, max 20, 10
-degenerate (KISS-ICP on the same points: 9.96 and 10.55 deg). With it: 0.13 deg (max 7.2, one frame registered
-wrong whose support is within 7 % of the truth's) and 0.12 deg (max 3.3), none degenerate (docs/NODE.md, "Turns").
-A frame that holds only a translation (KITTI 04's highway) or registers well is never searched.
+degenerate (KISS-ICP on the same points: 9.96 and 10.55 deg). With it: 0.13 deg (max 7.2: one frame registered
+wrong with half the last frame's support, which starts no search) and 0.12 deg (max 3.3), none degenerate
+(docs/NODE.md, "Turns"). A frame that holds only a translation (KITTI 04's highway) or registers well is never
+searched.
 """
 from __future__ import annotations
 
