@@ -19,6 +19,20 @@ namespace line_odom {
 
 namespace {
 
+// FNV-1a over the size and the endpoint coordinates' bits of a scan's lines: which scan a cached listing belongs to.
+std::uint64_t segments_fingerprint(const std::vector<LineFeature>& lines) {
+  std::uint64_t h = 1469598103934665603ull ^ lines.size();
+  auto mix = [&h](double v) {
+    std::uint64_t bits;
+    std::memcpy(&bits, &v, sizeof bits);
+    h = (h ^ bits) * 1099511628211ull;
+  };
+  for (const LineFeature& l : lines)
+    for (const Vec3* p : {&l.segment.a, &l.segment.b}) mix(p->x()), mix(p->y()), mix(p->z());
+  return h;
+}
+
+
 constexpr double kPi = 3.14159265358979323846;
 
 double deg2rad(double deg) { return deg * kPi / 180.0; }
@@ -351,6 +365,7 @@ struct CandidateIndex::Lines {
   // segment less than the distance shrank) re-tests the listed lines instead of scanning all boxes: the same lines
   // in the same order.
   const std::vector<LineFeature>* listed_b = nullptr;
+  std::uint64_t listed_fingerprint = 0;  // of listed_b's segments: another scan at the same address is not it
   std::vector<std::array<float, 6>> listed_reach;
   std::vector<std::pair<int, int>> listed_range;  // [begin, end) in listed_ids
   std::vector<int> listed_ids;
@@ -555,9 +570,11 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   std::vector<int>& last_seen = indexed.last_seen;
   int& stamp = indexed.stamp;
   std::uint8_t* const overlap = indexed.overlap.data();
-  const bool listing = brute_force && indexed.listed_b != &lines_b;
+  const std::uint64_t fingerprint = brute_force ? segments_fingerprint(lines_b) : 0;
+  const bool listing = brute_force && (indexed.listed_b != &lines_b || indexed.listed_fingerprint != fingerprint);
   if (listing) {
     indexed.listed_b = &lines_b;
+    indexed.listed_fingerprint = fingerprint;
     indexed.listed_reach.assign(lines_b.size(), {});
     indexed.listed_range.assign(lines_b.size(), {0, 0});
     indexed.listed_ids.clear();
