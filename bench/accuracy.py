@@ -330,7 +330,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--only", choices=("kitti", "tum", "sim"), help="run one dataset (sim: the simulated drive)")
     parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"], help="KITTI sequences")
-    parser.add_argument("--kitti-levels", nargs="*", type=int, default=[1, 6, 8], help="downsampling steps (none: skip)")
+    parser.add_argument("--kitti-levels", nargs="*", type=int, default=[1, 6, 8],
+                        help="downsampling steps (none: skip)")
     parser.add_argument("--kitti-frames", type=int, default=None, help="frames per sequence (default all)")
     parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16], choices=(8, 16, 32),
                         help="also KITTI kept to this many of its 64 lasers (every 4th for 16), every azimuth step, "

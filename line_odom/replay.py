@@ -90,13 +90,6 @@ def node_settings(kind: str, params: str | None = None, overrides: Mapping[str, 
     return settings_from_parameters(params or PRESET_FOR_INPUT[kind], {**(overrides or {}), "input": kind})
 
 
-def make_processor(kind: str, params: str | None = None, overrides: Mapping[str, Any] | None = None):
-    """The node's processing core for this input kind (node_settings)."""
-    from line_odom.processor import OdometryProcessor
-
-    return OdometryProcessor(*node_settings(kind, params, overrides))
-
-
 def _rclpy_types(kind: str):
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
@@ -216,7 +209,7 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                                  f"{found + ', expected ' + bags.ODOMETRY if found else 'not in the bag'}")
             # (in-process every pose is read before the first frame and kept; in real time they arrive as published)
             overrides = {**({} if realtime else {"guess.window": 86400.0}), **(overrides or {}), "guess.enabled": True}
-        settings = node_settings(inp.kind, params, overrides)[1]
+        config, settings = node_settings(inp.kind, params, overrides)
         if settings.base_to_sensor_from_tf and reader.topics.get(bags.TF_STATIC_TOPIC) != bags.TF_MESSAGE:
             raise ValueError(f"{reader.path}: base_to_sensor_from_tf is set but the bag has no {bags.TF_STATIC_TOPIC} "
                              f"({bags.TF_MESSAGE}) to take the sensor's mounting from")
@@ -230,8 +223,10 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                 run = replay_realtime.run_realtime(reader, inp, params=params, overrides=overrides, frames=frames,
                                                    progress=bar, rate=rate, guess_topic=guess_topic)
             else:
-                processor = make_processor(inp.kind, params, overrides)
-                run = run_in_process(reader, inp, processor, frames=frames, progress=bar, guess_topic=guess_topic)
+                from line_odom.processor import OdometryProcessor
+
+                run = run_in_process(reader, inp, OdometryProcessor(config, settings), frames=frames, progress=bar,
+                                     guess_topic=guess_topic)
         if len(run.estimate) == 0:
             raise RuntimeError(f"{bag}: the node produced no pose from {run.frames_in} frame(s) on {inp.topic} "
                                f"(counters: {run.counters})")

@@ -538,7 +538,9 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     failure.clear();
   }
 
-  auto too_few_meet = [&](const RigidTransform& T, int* inliers) { return too_few_pairs_meet(corr, table, T, inliers); };
+  auto too_few_meet = [&](const RigidTransform& T, int* inliers) {
+    return too_few_pairs_meet(corr, table, T, inliers);
+  };
   auto unobserved_axes = [&](const RigidTransform& T) { return unobserved_axes_at(table, T); };
   int inliers = 0;
   int axes = 0;
