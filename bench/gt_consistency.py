@@ -11,6 +11,16 @@ within 5 cm and 10 cm, per sequence, for the ground-truth motion and for each me
 motion per frame. Where both methods align the scans much more tightly than the ground truth does, the RPE of
 that sequence measures the ground truth's disagreement with the scans, not the methods' accuracy (bench/accuracy.py
 goals on KITTI 00, docs/RESULTS.md).
+
+Two more tables separate the ground truth's rotation from its translation and its errors from the methods':
+- The scans aligned by one motion's rotation with another's translation (GT rotation + the method's translation, the
+  method's rotation + GT translation): the part of the ground truth that leaves the scans less aligned is the part
+  that disagrees with them.
+- With KISS-ICP, the three-cornered hat (Gray and Allan, 1974; clock stability): three estimates of the same motion
+  with independent errors give each one's own error from their pairwise differences,
+  var(A) = (var(A - B) + var(A - C) - var(B - C)) / 2, with var the mean squared norm of a frame's difference (m, deg).
+  Nine frame pairs make these rough (a negative variance prints as a negative root); the mean signed rotation
+  difference to the ground truth (roll, pitch, yaw per frame) shows biases.
 """
 from __future__ import annotations
 
@@ -20,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 sys.path.append(str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -45,6 +56,54 @@ def relative(poses: list[np.ndarray], i: int) -> np.ndarray:
     return np.linalg.inv(poses[i - 1]) @ poses[i]
 
 
+def with_translation(rotation_from: np.ndarray, translation_from: np.ndarray) -> np.ndarray:
+    T = rotation_from.copy()
+    T[:3, 3] = translation_from[:3, 3]
+    return T
+
+
+def differences(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
+    """Per frame pair: (translation m, rotation vector deg) of a's relative motion to b's."""
+    out = []
+    for i in range(1, len(a)):
+        e = np.linalg.inv(relative(a, i)) @ relative(b, i)
+        out.append(np.r_[e[:3, 3], np.degrees(Rotation.from_matrix(e[:3, :3]).as_rotvec())])
+    return np.array(out)
+
+
+def signed_root(x: float) -> float:
+    return float(np.sign(x) * np.sqrt(abs(x)))
+
+
+def print_swaps(seq: str, scans: list[np.ndarray], trees: list[cKDTree], motions: dict) -> None:
+    gt = motions["GT"]
+    for name, poses in motions.items():
+        if name == "GT":
+            continue
+        for label, swap in ((f"GT rot + {name} t", lambda i: with_translation(relative(gt, i), relative(poses, i))),
+                            (f"{name} rot + GT t", lambda i: with_translation(relative(poses, i), relative(gt, i)))):
+            rows = np.array([alignment(structure_points(scans[i - 1]), trees[i], swap(i))
+                             for i in range(1, len(scans))])
+            print(f"{seq:4} {label:24} | {rows[:, 0].mean():13.4f} {rows[:, 1].mean():6.3f} {rows[:, 2].mean():7.3f}")
+
+
+def print_hat(seq: str, motions: dict) -> None:
+    lo_gt = differences(motions["GT"], motions["line_odom"])
+    kiss_gt = differences(motions["GT"], motions["KISS-ICP"])
+    lo_kiss = differences(motions["KISS-ICP"], motions["line_odom"])
+    for part, cols, unit in (("t", slice(0, 3), "m"), ("r", slice(3, 6), "deg")):
+        ms = [float(np.mean(np.sum(d[:, cols] ** 2, axis=1))) for d in (lo_gt, kiss_gt, lo_kiss)]
+        own_lo = signed_root((ms[0] + ms[2] - ms[1]) / 2)
+        own_kiss = signed_root((ms[1] + ms[2] - ms[0]) / 2)
+        own_gt = signed_root((ms[0] + ms[1] - ms[2]) / 2)
+        bias = ""
+        if part == "r":
+            bias = (f" | {' '.join(f'{v:+.4f}' for v in lo_gt[:, cols].mean(axis=0))}"
+                    f" | {' '.join(f'{v:+.4f}' for v in kiss_gt[:, cols].mean(axis=0))}")
+        print(f"{seq:4} {part + ' [' + unit + ']':7} | {np.sqrt(ms[0]):7.4f} {np.sqrt(ms[1]):8.4f} {np.sqrt(ms[2]):8.4f} | "
+              f"{own_lo:9.4f} {own_kiss:8.4f} {own_gt:7.4f}{bias}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"])
@@ -58,6 +117,7 @@ def main() -> None:
     head = f"{'seq':4} {'motion':10} | {'median NN [m]':>13} {'<5 cm':>6} {'<10 cm':>7} | {'forward [m]':>11}"
     print(head)
     print("-" * len(head))
+    runs = []
     for seq in args.kitti:
         data = kitti_sequence(seq)
         scans = [np.ascontiguousarray(data.points(i)[:, :3], dtype=np.float64) for i in range(len(data))]
@@ -77,6 +137,23 @@ def main() -> None:
             forward = np.mean([relative(poses, i)[0, 3] for i in range(1, len(scans))])
             print(f"{seq:4} {name:10} | {rows[:, 0].mean():13.4f} {rows[:, 1].mean():6.3f} {rows[:, 2].mean():7.3f} | "
                   f"{forward:11.3f}")
+        runs.append((seq, scans, trees, motions))
+
+    print("\nThe same with one motion's rotation and another's translation")
+    head = f"{'seq':4} {'motion':24} | {'median NN [m]':>13} {'<5 cm':>6} {'<10 cm':>7}"
+    print(head)
+    print("-" * len(head))
+    for seq, scans, trees, motions in runs:
+        print_swaps(seq, scans, trees, motions)
+    if use_kiss:
+        print("\nThree-cornered hat: rms of the pairwise differences per frame, each estimate's own rms error, and the "
+              "mean signed rotation error (roll pitch yaw, deg a frame) against the ground truth")
+        head = (f"{'seq':4} {'':7} | {'LO-GT':>7} {'KISS-GT':>8} {'LO-KISS':>8} | {'own: LO':>9} {'KISS':>8} "
+                f"{'GT':>7} | {'LO-GT mean r':>22} | {'KISS-GT mean r':>22}")
+        print(head)
+        print("-" * len(head))
+        for seq, _, _, motions in runs:
+            print_hat(seq, motions)
 
 
 if __name__ == "__main__":
