@@ -5,6 +5,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels 6
     .venv/bin/python bench/accuracy.py --sim            # + the simulated 1 km street drive (KITTI devkit metric)
     .venv/bin/python bench/accuracy.py --only sim --sim-sensor vlp16   # the same street with a 16-beam LiDAR
+    .venv/bin/python bench/accuracy.py --only sim --sim-distortion     # sweeps cast while moving: deskew on / off
     .venv/bin/python bench/accuracy.py --seeds 8        # + line_odom's spread over RANSAC seeds 0-7
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
 
@@ -63,12 +64,12 @@ def overrides_and_kiss(parser: argparse.ArgumentParser, args: argparse.Namespace
     return overrides, kiss
 
 
-def kiss_odometry(max_range: float, threads: int = 0):
+def kiss_odometry(max_range: float, threads: int = 0, deskew: bool = False):
     from kiss_icp.config import load_config
     from kiss_icp.kiss_icp import KissICP
 
     config = load_config(None)
-    config.data.deskew = False
+    config.data.deskew = deskew
     config.data.max_range = max_range
     config.mapping.voxel_size = max_range / 100.0
     config.registration.max_num_threads = threads
@@ -302,6 +303,57 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str
         print(f"{name:5} | {lo_text} | {k_text} | {goal}", flush=True)
 
 
+def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64") -> None:
+    """The simulated street drive with sweeps cast while the sensor moves (each column from the pose at its firing
+    time, 10 m/s: up to 1 m across a sweep): line_odom given each point's time (sensor.deskew) and without it,
+    KISS-ICP with its deskew on (the same times, as fractions of the sweep) and off, on the same points."""
+    from line_odom import sim
+    from line_odom.metrics import kitti_errors
+
+    run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor, motion_distortion=True)
+    gt = np.array(run.trajectory.poses)
+    length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
+    preset = SIM_PRESETS[sensor]
+    print(f"\nsimulated street drive with motion-distorted sweeps, {sensor} ({preset}): {frames} scans, {length:.0f} m "
+          f"(KITTI devkit metric over 100..800 m segments when >= 100 m)")
+    print(f"{'res':5} {'method':24} | {'t_err [%]':>10} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'r [deg]':>8} "
+          f"{'ms':>6}", flush=True)
+    for level in (levels if sensor == "hdl64" else (None,)):
+        level_over = {} if level is None else {"downsample": level}
+        config = line_odom_core.load_config(preset, {**level_over, **overrides})
+        step = config["downsample"]
+        methods = {"line_odom deskewed": line_odom_core.Odometry(config),
+                   "line_odom as measured": line_odom_core.Odometry(config)}
+        if kiss:
+            methods["KISS-ICP deskew on"] = kiss_odometry(100.0, deskew=True)
+            methods["KISS-ICP deskew off"] = kiss_odometry(100.0)
+        poses = {name: [] for name in methods}
+        ms = {name: [] for name in methods}
+        for frame in run:
+            scan = frame.data
+            ring = scan.ring.astype(np.int32)
+            sweep_fraction = scan.time.astype(np.float64) * run.sensor.rate_hz
+            for name, method in methods.items():
+                t0 = time.perf_counter()
+                if name.startswith("line_odom"):
+                    times = scan.time if name == "line_odom deskewed" else None
+                    poses[name].append(method.register_points(scan.points, frame.stamp, ring=ring, time=times).pose)
+                else:
+                    keep = (np.arange(len(scan.points)) if step == 1 else
+                            np.flatnonzero((scan.ring % step == 0) & (scan.column % step == 0)))
+                    method.register_frame(scan.points[keep].astype(np.float64), sweep_fraction[keep])
+                    poses[name].append(method.last_pose.copy())
+                ms[name].append((time.perf_counter() - t0) * 1e3)
+        name_level = "full" if step == 1 else f"1/{step * step}"
+        for name in methods:
+            est = np.array(poses[name])
+            scores = kitti_errors(est, gt)
+            err = rpe(est, gt)
+            score_text = f"{scores[0]:10.3f} {scores[1]:14.5f}" if scores else f"{'-':>10} {'':>14}"
+            print(f"{name_level:5} {name:24} | {score_text} {err[0]:10.4f} {err[2]:8.4f} {np.mean(ms[name][1:]):6.1f}",
+                  flush=True)
+
+
 def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> None:
     """line_odom again with RANSAC seeds 1..seeds-1 on each row's frames (KISS-ICP is deterministic: its numbers
     from the seed-0 run); each goal judged per seed against the same KISS-ICP row."""
@@ -344,6 +396,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sim-sensor", choices=tuple(SIM_PRESETS), default="hdl64",
                         help="simulated LiDAR (vlp16, os128: their own presets at the presets' resolution)")
     parser.add_argument("--sim-levels", nargs="+", type=int, default=[1, 6], help="downsampling steps of the sim run")
+    parser.add_argument("--sim-distortion", action="store_true",
+                        help="the simulated drive with sweeps cast while the sensor moves: line_odom with and without "
+                             "the points' times (sensor.deskew), KISS-ICP with deskew on and off")
     parser.add_argument("--seeds", type=int, default=1,
                         help="also run line_odom with RANSAC seeds 1..N-1 and print the spread (nine frame pairs "
                              "per KITTI row: one sample can move a mean)")
@@ -378,7 +433,8 @@ def main(argv=None) -> int:
         if args.seeds > 1:
             print_seed_spread(rows, args.seeds, args, overrides)
     if args.sim:
-        run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor)
+        run = run_sim_distorted if args.sim_distortion else run_sim
+        run(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor)
     return 0
 
 

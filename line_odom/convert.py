@@ -258,6 +258,33 @@ def _point_time(points: np.ndarray) -> np.ndarray | None:
     return None
 
 
+ABSOLUTE_TIME_S = 1e5  # per-point times beyond a day are clock times (Hesai, Livox), not offsets within a sweep
+MAX_SWEEP_S = 1.0
+
+
+def sweep_times(cloud: CloudArrays) -> np.ndarray | None:
+    """The cloud's per-point times as seconds from its header stamp (the engine's `time`), or None without a time
+    field. Clock times have the stamp subtracted; offsets (Velodyne `time`, Ouster `t`) are taken as from the stamp.
+    The times of points without a return (NaN in an organized cloud) do not matter and become 0. PointCloudError
+    naming the field when a point's time is not finite or the times do not lie within one sweep (1 s)."""
+    if cloud.time is None:
+        return None
+    times = np.array(cloud.time, dtype=np.float64)
+    xyz = cloud.xyz
+    measured = np.isfinite(xyz[..., 0]) & np.isfinite(xyz[..., 1]) & np.isfinite(xyz[..., 2])
+    times[~measured] = 0.0
+    if not np.isfinite(times).all():
+        raise PointCloudError("fields[time]", f"expected a finite time for every point, got "
+                                              f"{int((~np.isfinite(times)).sum())} non-finite")
+    if measured.any() and np.median(np.abs(times[measured])) > ABSOLUTE_TIME_S:
+        times[measured] -= cloud.stamp
+    first, last = (float(times[measured].min()), float(times[measured].max())) if measured.any() else (0.0, 0.0)
+    if last - first > MAX_SWEEP_S or max(abs(first), abs(last)) > 2 * MAX_SWEEP_S:
+        raise PointCloudError("fields[time]", f"expected the points' times within one sweep of the header stamp "
+                                              f"(seconds, or clock times), got {first:.6g} .. {last:.6g} s from it")
+    return times
+
+
 def pointcloud2_to_arrays(msg, *, max_points: int = 0, organized: bool | None = None) -> CloudArrays:
     """Convert a PointCloud2 to numpy. ``organized`` (default: height > 1) selects (H, W, 3) output.
     Raises PointCloudError for malformed clouds, an empty cloud, a cloud without a finite point, or more

@@ -231,7 +231,7 @@ class OdometryProcessor:
         self._K: np.ndarray | None = None
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
-            frames_duplicate=0, resets=0)
+            frames_duplicate=0, resets=0, frames_deskewed=0, point_times_ignored=0)
         self.guess = (MotionGuess(self.settings.base_frame, tolerance=self.settings.guess_tolerance,
                                   window=self.settings.guess_window) if self.settings.guess_enabled else None)
         if self.guess is not None:
@@ -418,11 +418,19 @@ class OdometryProcessor:
         except convert.ConversionError as err:
             self._reject("frames_malformed", str(err))
             return None
+        try:
+            times = convert.sweep_times(cloud)
+        except convert.ConversionError as err:  # registered as measured: the sweep is not corrected
+            self._reject("point_times_ignored", str(err), "registering without deskewing")
+            times = None
+        # (the time keyword only when there are times: engines without it keep working)
+        extra = {} if times is None else {"time": times}
         if cloud.organized:
-            run = lambda stamp, **guess: self.engine.register_organized(cloud.xyz, stamp, **guess)  # noqa: E731
+            run = lambda stamp, **guess: self.engine.register_organized(  # noqa: E731
+                cloud.xyz, stamp, **extra, **guess)
         else:
             run = lambda stamp, **guess: self.engine.register_points(  # noqa: E731
-                cloud.xyz, stamp, ring=cloud.ring, **guess)
+                cloud.xyz, stamp, ring=cloud.ring, **extra, **guess)
         return self._register(run, convert.stamp_to_ns(msg.header.stamp), cloud.frame_id, t0, receive_time)
 
     def process_depth(self, image, camera_info=None, receive_time: float | None = None) -> FrameOutput | None:
@@ -476,6 +484,9 @@ class OdometryProcessor:
                 self._reject("frames_failed", "registration returned a non-finite pose or covariance")
                 return None
             out = self._outputs(stamp_ns, frame_id, pose, delta, cov, dict(result.stats))
+            if out.stats.get("deskewed"):
+                with self._count_lock:
+                    self.counters["frames_deskewed"] += 1
             out.reset_reason = reset_reason
             if self.guess is not None:
                 self._guess_prev = guess_pose
@@ -588,7 +599,7 @@ class OdometryProcessor:
         for key in (
                 "solver", "inliers", "degenerate", "held_directions", "candidates", "h_lines", "v_lines",
                 "registered_lines", "planes", "prediction", "unmeasured_directions", "window_scans", "turn_searched",
-                "turn_recovered"):
+                "turn_recovered", "deskewed", "previous_deskewed_again"):
             if key in stats:
                 values[key] = stats[key]
         if "persistence" in stats:  # the share of the last motion the prediction carried, x y z rx ry rz
@@ -625,7 +636,8 @@ class OdometryProcessor:
                           ("frames_unguessed", "frame(s) without a guess_odom pose (constant-velocity prediction)"),
                           ("guess_rejected", "guess_odom message(s) rejected"),
                           ("frames_no_extrinsic", "frame(s) dropped: the sensor's mounting not on /tf_static yet"),
-                          ("tf_rejected", "/tf_static transform(s) rejected")):
+                          ("tf_rejected", "/tf_static transform(s) rejected"),
+                          ("point_times_ignored", "frame(s) registered without deskewing (unusable point times)")):
             if since.get(key):
                 problems.append(f"{since[key]} {text}")
         if values["frames_processed"] == 0:

@@ -147,9 +147,11 @@ class Odometry:
     # guess: (4, 4) T_prev_curr of the sensor from another source (wheel odometry, IMU), or None
     def register_points(self, xyz: npt.NDArray[np.floating], stamp: float,
                         ring: npt.NDArray[np.int32] | None = None,
-                        guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # xyz (N, k>=3)
+                        guess: npt.NDArray[np.float64] | None = None,
+                        time: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # xyz (N, k>=3), time (N,)
     def register_organized(self, xyz: npt.NDArray[np.floating], stamp: float,
-                           guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # (H, W, k>=3)
+                           guess: npt.NDArray[np.float64] | None = None,
+                           time: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # (H, W, k>=3), (H, W)
     def register_depth(self, depth: npt.NDArray[np.float32], K: npt.NDArray[np.float64],
                        stamp: float, guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...
     def downsampled_points(self, xyz: npt.NDArray[np.floating],

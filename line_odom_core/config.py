@@ -47,6 +47,12 @@ _ENTRIES: list[ConfigEntry] = [
                 -90.0, 90.0),
     ConfigEntry("sensor.min_range", float, 0.0, "closer points are holes (m; depth cameras: depth z)", 0.0, 1e6),
     ConfigEntry("sensor.max_range", float, 1e9, "farther points are holes (m)", 0.0, 1e9),
+    ConfigEntry("sensor.deskew", bool, True, "points given with their times (a PointCloud2's t/time/timestamp "
+                "field) are moved into the sensor frame at the stamp at the predicted velocity (motion "
+                "compensation of the sweep); false: used as measured", None, None),
+    ConfigEntry("sensor.deskew_tolerance", float, 0.005, "the previous scan is deskewed again at the current "
+                "velocity when the two corrections put a point 20 m away further apart than this (m), so both "
+                "scans of a registration are corrected alike", 0.0, 10.0),
     # --- line fitting on rows (H-lines) and columns (V-lines), paper §6.2 ---
     ConfigEntry("lines.min_points_h", int, 5, "inlier points an H-line (row) needs", 2, 100000),
     ConfigEntry("lines.min_points_v", int, 3, "inlier points a V-line (column) needs (few rows when "

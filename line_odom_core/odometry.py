@@ -69,6 +69,20 @@ def _pose(name: str, value: Any) -> np.ndarray:
     return T
 
 
+def _times(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf" or arr.shape != shape:
+        raise ValueError(f"time: expected {what} of shape {shape} (seconds from the stamp), got shape {arr.shape} "
+                         f"and dtype {arr.dtype}")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    if not np.isfinite(arr).all():
+        raise ValueError(f"time: expected finite seconds from the stamp, got {int((~np.isfinite(arr)).sum())} "
+                         "non-finite values")
+    return arr
+
+
 def _guess(value: Any) -> np.ndarray | None:
     return None if value is None else _pose("guess", value)
 
@@ -92,9 +106,16 @@ class Odometry:
 
     # ---- registration ----
     def register_points(self, xyz: np.ndarray, stamp: float, *, ring: np.ndarray | None = None,
-                        guess: np.ndarray | None = None) -> FrameResult:
+                        guess: np.ndarray | None = None, time: np.ndarray | None = None) -> FrameResult:
         """Unorganized points (N, 3) in metres (NaN/inf = dropped); `ring` (N,) integer beam index per point, or
         None to organize by elevation with the configured sensor model.
+
+        time (register_points, register_organized): when each point was measured, in seconds from `stamp`
+        (negative: before it), or None. With `sensor.deskew` (on in the LiDAR presets) the sweep is corrected for
+        the sensor's motion during it at the predicted velocity, into the sensor frame at `stamp`; the previous scan
+        is corrected again when it was corrected at a velocity that differs by more than `sensor.deskew_tolerance`,
+        so that both scans of a registration are corrected alike (stats["deskewed"],
+        stats["previous_deskewed_again"]).
 
         guess (every register_* method): the sensor's motion since the previous frame from another source (wheel
         odometry, an IMU), T_prev_curr (4x4) in the sensor frame, or None. It replaces the constant-velocity
@@ -108,12 +129,15 @@ class Odometry:
                 raise ValueError(f"ring: expected an integer array of shape ({pts.shape[0]},), got shape "
                                  f"{ring_arr.shape} and dtype {ring_arr.dtype}")
             ring_arr = np.ascontiguousarray(ring_arr, dtype=np.int32)
-        return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr, _guess(guess)))
+        times = _times(time, (pts.shape[0],), "one time per point")
+        return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr, _guess(guess), times))
 
-    def register_organized(self, xyz: np.ndarray, stamp: float, *, guess: np.ndarray | None = None) -> FrameResult:
-        """Organized points (H, W, 3): rows = rings or pixel rows; NaN/inf/zero points are holes."""
+    def register_organized(self, xyz: np.ndarray, stamp: float, *, guess: np.ndarray | None = None,
+                           time: np.ndarray | None = None) -> FrameResult:
+        """Organized points (H, W, 3): rows = rings or pixel rows; NaN/inf/zero points are holes; `time` (H, W)."""
         pts = _float_array("xyz", xyz, 3, 3, "an (H, W, 3) organized point array")
-        return self._wrap(self._engine.register_organized(pts, _stamp(stamp), _guess(guess)))
+        times = _times(time, pts.shape[:2], "one time per point")
+        return self._wrap(self._engine.register_organized(pts, _stamp(stamp), _guess(guess), times))
 
     def register_depth(self, depth: np.ndarray, K: np.ndarray, stamp: float, *,
                        guess: np.ndarray | None = None) -> FrameResult:

@@ -480,8 +480,11 @@ def test_sweep_with_motion_is_cast_from_the_moving_sensor():
             np.testing.assert_allclose(_world(scan.points[m], T)[:, 0], 30.0, atol=1e-4)
     # ...but not with the start pose: the raw points are distorted by the motion.
     assert np.abs(_world(scan.points, T0)[:, 0] - 30.0).max() > 0.5
-    # Per-point time: when its column fired, within one revolution; later columns saw the wall nearer.
-    np.testing.assert_allclose(scan.time, (scan.column + 0.5) / lidar.shape[1] * 0.1, rtol=1e-6)
+    # Per-point time: when the pose of its column's block was taken (the block's middle firing time), within one
+    # revolution; later columns saw the wall nearer.
+    for (c0, c1) in scan.blocks:
+        m = (scan.column >= c0) & (scan.column < c1)
+        np.testing.assert_allclose(scan.time[m], (c0 + c1) / 2 / lidar.shape[1] * 0.1, rtol=1e-6)
     fwd = scan.ring == 7
     assert scan.time[fwd].max() < 0.1
     # Interpolated block poses: first/last block near the start/end pose, translation monotone along x.

@@ -218,7 +218,8 @@ class Lidar:
         """Ray-cast one sweep. Without ``T_end`` every ray leaves from ``T_world_sensor`` (no motion distortion).
         With ``T_end`` (the pose one revolution, ``1 / rate_hz`` s, later) the sensor moves during the sweep:
         column c fires at ``(c + 0.5) / W`` of the revolution, cast in ``sectors`` blocks from interpolated
-        poses; points stay in the sensor frame of their firing time (raw, not deskewed) and ``time`` says when."""
+        poses (each at its block's middle firing time); points stay in the sensor frame of that pose (raw, not
+        deskewed) and ``time`` says when it was taken (s after ``stamp``), so that time and geometry agree."""
         if T_end is None:
             poses, blocks = _check_pose(T_world_sensor)[None], [(0, self.shape[1])]
         else:
@@ -241,8 +242,11 @@ class Lidar:
         rows, cols = np.nonzero(valid)
         if T_end is None:
             times = np.zeros(len(cols), np.float32)
-        else:
-            times = ((cols + 0.5) / self.shape[1] / self.rate_hz).astype(np.float32)
+        else:  # when each column's pose was taken: the middle of its block, as the geometry has it
+            column_time = np.empty(self.shape[1])
+            for a, b in blocks:
+                column_time[a:b] = (a + b) / 2 / self.shape[1] / self.rate_hz
+            times = column_time[cols].astype(np.float32)
         return LidarScan(organized=organized, range=rng_img, label=label, points=organized[rows, cols],
                          ring=rows.astype(np.uint16), column=cols.astype(np.int32), time=times, stamp=float(stamp),
                          scene=scene, poses=poses, blocks=tuple(blocks), directions=(g.dx, g.dy, g.dz))

@@ -75,7 +75,7 @@ py::array_t<double, py::array::c_style> as_float_array(const char* function, con
   if (kind != 'f' && kind != 'i' && kind != 'u')
     throw py::value_error(expected + ", got dtype " + std::string(py::str(arr.dtype())));
   std::vector<py::ssize_t> actual(arr.shape(), arr.shape() + arr.ndim());
-  if (actual != shape) throw py::value_error(expected + ", got shape " + shape_text(actual));
+  if (actual != shape) throw py::value_error(expected + ", got shape " + solver_bindings::shape_text(actual));
   auto out = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(arr);
   if (!out) throw py::value_error(expected);
   const double* data = out.data();
@@ -836,6 +836,7 @@ py::dict settings_dict(const line_odom::OdometryConfig& config) {
 py::dict stats_dict(const line_odom::FrameStats& s) {
   py::dict ms;
   ms["organize"] = s.ms.organize;
+  ms["deskew"] = s.ms.deskew;
   ms["downsample"] = s.ms.downsample;
   ms["features"] = s.ms.features;
   ms["lines"] = s.ms.lines;
@@ -873,6 +874,8 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["turn_searched"] = s.turn_searched;
   d["turn_recovered"] = s.turn_recovered;
   d["window_scans"] = s.window_scans;
+  d["deskewed"] = s.deskewed;
+  d["previous_deskewed_again"] = s.previous_deskewed_again;
   d["ms"] = ms;
   return d;
 }
@@ -932,37 +935,56 @@ std::optional<line_odom::RigidTransform> guess_transform(const std::optional<lin
   return line_odom::RigidTransform::from_matrix(*guess);
 }
 
+// Per-point times (s from the stamp), one per point of `shape`; the engine checks that they are finite.
+using TimeArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
+const double* time_pointer(const std::optional<TimeArray>& time, const std::vector<py::ssize_t>& shape,
+                           const char* what) {
+  if (!time) return nullptr;
+  bool same = time->ndim() == static_cast<py::ssize_t>(shape.size());
+  for (std::size_t k = 0; same && k < shape.size(); ++k) same = time->shape(k) == shape[k];
+  if (!same) throw py::value_error(std::string("time: expected ") + what + ", got shape " + solver_bindings::shape_text(
+      std::vector<py::ssize_t>(time->shape(), time->shape() + time->ndim())));
+  return time->data();
+}
+
 line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& xyz, double stamp,
                                        const std::optional<py::array_t<std::int32_t>>& ring,
-                                       const std::optional<line_odom::Mat4>& guess) {
+                                       const std::optional<line_odom::Mat4>& guess,
+                                       const std::optional<TimeArray>& time) {
   const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
   const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
   const std::int32_t* ring_ptr = ring_pointer(ring, n);
+  const double* time_ptr = time_pointer(time, {xyz.shape(0)}, "one time (s from the stamp) per point, shape (N,)");
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
   const bool is_float = py::isinstance<py::array_t<float>>(xyz);
   const void* data = xyz.data();
   py::gil_scoped_release release;
   try {
-    return is_float ? o.register_points(static_cast<const float*>(data), n, stride, ring_ptr, stamp, guess_ptr)
-                    : o.register_points(static_cast<const double*>(data), n, stride, ring_ptr, stamp, guess_ptr);
+    return is_float
+               ? o.register_points(static_cast<const float*>(data), n, stride, ring_ptr, stamp, guess_ptr, time_ptr)
+               : o.register_points(static_cast<const double*>(data), n, stride, ring_ptr, stamp, guess_ptr, time_ptr);
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
 }
 
 line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::array& xyz, double stamp,
-                                          const std::optional<line_odom::Mat4>& guess) {
+                                          const std::optional<line_odom::Mat4>& guess,
+                                          const std::optional<TimeArray>& time) {
   const std::size_t stride = point_stride(xyz, 3, "an (H, W, 3) organized point array");
   const int rows = static_cast<int>(xyz.shape(0)), cols = static_cast<int>(xyz.shape(1));
+  const double* time_ptr =
+      time_pointer(time, {xyz.shape(0), xyz.shape(1)}, "one time (s from the stamp) per point, shape (H, W)");
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
   const bool is_float = py::isinstance<py::array_t<float>>(xyz);
   const void* data = xyz.data();
   py::gil_scoped_release release;
   try {
-    return is_float ? o.register_organized(static_cast<const float*>(data), rows, cols, stride, stamp, guess_ptr)
-                    : o.register_organized(static_cast<const double*>(data), rows, cols, stride, stamp, guess_ptr);
+    return is_float
+               ? o.register_organized(static_cast<const float*>(data), rows, cols, stride, stamp, guess_ptr, time_ptr)
+               : o.register_organized(static_cast<const double*>(data), rows, cols, stride, stamp, guess_ptr, time_ptr);
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
@@ -1099,9 +1121,9 @@ PYBIND11_MODULE(_core, m) {
     py::class_<Odometry>(m, "Odometry", "Stateful frame-to-frame odometry; settings: dict of dotted names.")
         .def(py::init(&ob::make_odometry), py::arg("settings"))
         .def("register_points", &ob::register_points, py::arg("xyz"), py::arg("stamp"), py::arg("ring") = py::none(),
-             py::arg("guess") = py::none())
+             py::arg("guess") = py::none(), py::arg("time") = py::none())
         .def("register_organized", &ob::register_organized, py::arg("xyz"), py::arg("stamp"),
-             py::arg("guess") = py::none())
+             py::arg("guess") = py::none(), py::arg("time") = py::none())
         .def("register_depth", &ob::register_depth, py::arg("depth"), py::arg("K"), py::arg("stamp"),
              py::arg("guess") = py::none())
         .def("downsampled_points", &ob::downsampled_points, py::arg("xyz"), py::arg("ring") = py::none())

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "candidates.hpp"
+#include "deskew.hpp"
 #include "feature_extraction.hpp"
 #include "feature_window.hpp"
 #include "motion_estimation.hpp"
@@ -66,6 +67,8 @@ struct SensorOptions {
   double max_elevation_deg = 2.0;
   double min_elevation_deg = -24.9;
   RangeLimits limits;
+  bool deskew = true;              // points with times: moved into the frame at the stamp (deskew.hpp)
+  double deskew_tolerance = 0.005;  // m: the previous scan is deskewed again when the velocity changed by more
 };
 
 // The SensorModel the options describe; throws std::invalid_argument when they are inconsistent.
@@ -86,6 +89,7 @@ struct OdometryConfig {
 struct StageMilliseconds {
   double organize = 0, downsample = 0, features = 0, candidates = 0, ransac = 0, total = 0;
   double lines = 0, normals = 0, planes = 0;  // parts of features
+  double deskew = 0;                           // part of organize: correcting both scans' sweeps
 };
 
 struct FrameStats {
@@ -116,6 +120,9 @@ struct FrameStats {
                                 // inlier weight: the heading was scanned (search_turn)
   bool turn_recovered = false;  // ... and the motion registered from the best-supported heading replaced it
   int window_scans = 0;         // previous scans the motion was registered against (registration.window; 0: none)
+  bool deskewed = false;        // the points had times and were moved to the stamp at the predicted velocity
+  bool previous_deskewed_again = false;  // ... and the previous scan, deskewed at another velocity, was again at this
+                                         // one (its features fitted anew), so that both scans are corrected alike
   StageMilliseconds ms;
 };
 
@@ -150,13 +157,17 @@ class Odometry {
   // prior is centred on it and degenerate directions are held at it. Throws std::invalid_argument when it is
   // not a finite rigid transform. Ignored on the first frame.
   // Unorganized points: xyz at data[i * stride + 0..2]; `ring` (nullable) gives the beam of each point.
+  // `time` (nullable): when each point was measured, in seconds from `stamp`; with sensor.deskew the sweep is
+  // corrected for the motion during it (deskew.hpp) at the predicted velocity, and so is the previous scan when it was
+  // corrected at another one. Throws std::invalid_argument on a non-finite time.
   template <typename Scalar>
   FrameResult register_points(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
-                              double stamp, const RigidTransform* guess = nullptr);
-  // Organized cloud (rows x cols, row-major, `stride` elements per point); non-finite points are holes.
+                              double stamp, const RigidTransform* guess = nullptr, const double* time = nullptr);
+  // Organized cloud (rows x cols, row-major, `stride` elements per point); non-finite points are holes. `time`
+  // (nullable): rows x cols, as for register_points.
   template <typename Scalar>
   FrameResult register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
-                                 const RigidTransform* guess = nullptr);
+                                 const RigidTransform* guess = nullptr, const double* time = nullptr);
   // Depth image in metres (row-major rows x cols, 0 / non-finite = no measurement) and intrinsics K.
   FrameResult register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
                              const RigidTransform* guess = nullptr);
@@ -178,7 +189,28 @@ class Odometry {
   const ScanFeatures& last_features() const { return prev_features_; }
 
  private:
+  // A scan's points as measured and their times, kept to deskew it again (sensor.deskew).
+  struct Sweep {
+    std::vector<double> xyz;          // count x 3
+    std::vector<std::int32_t> ring;   // empty: none
+    std::vector<double> time;
+    int rows = 0, cols = 0;           // > 0: organized
+    int organized_step = 1, fit_step = 1;
+    SweepVelocity velocity;           // it was deskewed at
+    double first = 0.0, last = 0.0;   // its earliest and latest time
+  };
   RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
+  // The velocity a scan at `stamp` is deskewed at: the prediction's (or the guess's) over the stamp interval; standing
+  // still on the first frame and while there is no velocity.
+  SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess) const;
+  // Deskews `sweep` at `velocity` and organizes it at `step`.
+  RangeImage organize_sweep(const Sweep& sweep, const SweepVelocity& velocity, int step) const;
+  // When the previous scan was deskewed at a velocity that moves its points more than sensor.deskew_tolerance from
+  // where `velocity` puts them: deskews it at `velocity` and fits its features anew. True when it did.
+  bool deskew_previous_again(const SweepVelocity& velocity);
+  template <typename Scalar>
+  FrameResult register_sweep(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
+                             int rows, int cols, double stamp, const RigidTransform* guess, const double* time);
   // The passes of paper §6.3 from `start`; `prediction` bounds the accepted estimates.
   PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                                 const RigidTransform& start, bool limit_pairs, FrameStats* st) const;
@@ -246,6 +278,11 @@ class Odometry {
   ScanFeatures prev_features_;
   ScanFeatures prev_coarse_features_;
   FeatureWindow window_;  // the last registration.window scans' features, in the previous scan's frame
+  Sweep prev_sweep_;      // the previous scan as measured, when it had times (sensor.deskew)
+  bool have_prev_sweep_ = false;
+  // set by register_sweep for the frame register_range_image is about to register
+  bool sweep_deskewed_ = false, previous_deskewed_again_ = false;
+  double deskew_ms_ = 0.0;
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 

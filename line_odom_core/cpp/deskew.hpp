@@ -1,0 +1,31 @@
+// Motion compensation of a LiDAR sweep: the points a spinning sensor measured while it moved, each moved into the
+// sensor frame at the scan's stamp. A point measured tau seconds after the stamp (negative: before it) is moved by
+// the sensor's motion over tau at a constant velocity: `motion` over `interval` seconds, its rotation angle and
+// translation scaled by tau / interval (SO(3) x R^3, as scale_motion).
+#pragma once
+
+#include <cstddef>
+
+#include "scan_features.hpp"
+#include "types.hpp"
+
+namespace line_odom {
+
+struct SweepVelocity {
+  RigidTransform motion;  // T_stamp_(stamp + interval)
+  double interval = 0.0;  // s; 0: standing still (nothing moves)
+
+  bool moving() const { return interval > 0.0; }
+  // T_stamp_(stamp + tau)
+  RigidTransform at(double tau) const;
+};
+
+// Moves each valid cell's point, measured at time[source] (s from the stamp; source = the cell's source_index, or
+// the cell itself for an organized input), into the stamp's frame. The cells stay where the sweep measured them.
+void deskew_image(RangeImage* image, const double* time, const SweepVelocity& velocity);
+
+// The largest distance between where the two velocities put a point `lever` metres from the sensor measured at t0 or
+// t1 (the ends of a sweep): how differently two scans corrected with them are deskewed.
+double deskew_difference(const SweepVelocity& a, const SweepVelocity& b, double t0, double t1, double lever);
+
+}  // namespace line_odom
