@@ -52,6 +52,33 @@ void check_guess(const RigidTransform* guess) {
                                 "determinant +1)");
 }
 
+// The caller's rotation guess (a gyro's R_prev_curr): finite, orthonormal, determinant +1; not beside a full guess.
+void check_rotation_guess(const Mat3* rotation_guess, const RigidTransform* guess) {
+  if (rotation_guess == nullptr) return;
+  if (guess != nullptr)
+    throw std::invalid_argument("rotation_guess: expected no guess beside it (guess replaces the whole prediction, "
+                                "rotation_guess only its rotation); pass one of them");
+  const Mat3& R = *rotation_guess;
+  const bool rotation = R.allFinite() && (R.transpose() * R - Mat3::Identity()).cwiseAbs().maxCoeff() < 1e-6 &&
+                        R.determinant() > 0.0;
+  if (!rotation)
+    throw std::invalid_argument("rotation_guess: expected a finite rotation matrix R_prev_curr (orthonormal, "
+                                "determinant +1)");
+}
+
+// The prediction turned by `R` instead of its own rotation, its translation along the same body-frame velocity: a
+// constant velocity turning at rate w moves the sensor by about exp(w dt / 2) v dt, so the translation turns by the
+// half-angle difference (a 10 deg/frame turn reversed: 10 deg, 0.09 m at 0.5 m a frame).
+RigidTransform with_rotation(const RigidTransform& prediction, const Mat3& R) {
+  const Eigen::AngleAxisd own(prediction.R), turned(R);
+  const Mat3 half_own = Eigen::AngleAxisd(0.5 * own.angle(), own.axis()).toRotationMatrix();
+  const Mat3 half_turned = Eigen::AngleAxisd(0.5 * turned.angle(), turned.axis()).toRotationMatrix();
+  RigidTransform out;
+  out.R = R;
+  out.t = half_turned * half_own.transpose() * prediction.t;
+  return out;
+}
+
 // Every k-th line of each direction, k the smallest keeping at most max_lines in all; the planes as they are.
 ScanFeatures every_kth_line(const ScanFeatures& features, std::size_t max_lines) {
   const std::size_t lines = features.h_lines.size() + features.v_lines.size();
@@ -298,28 +325,32 @@ SensorModel make_sensor_model(const SensorOptions& options) {
 
 template <typename Scalar>
 FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std::size_t stride,
-                                      const std::int32_t* ring, double stamp, const RigidTransform* guess) {
+                                      const std::int32_t* ring, double stamp, const RigidTransform* guess,
+                                      const Mat3* rotation_guess) {
+  check_rotation_guess(rotation_guess, guess);
   Stopwatch watch;
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
       organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
-  return register_range_image(image, stamp, watch.ms(), step, guess);
+  return register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
 }
 
 template <typename Scalar>
 FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
-                                         const RigidTransform* guess) {
+                                         const RigidTransform* guess, const Mat3* rotation_guess) {
+  check_rotation_guess(rotation_guess, guess);
   Stopwatch watch;
   const RangeImage image = organize_cloud(data, rows, cols, stride, config_.sensor.limits);
-  return register_range_image(image, stamp, watch.ms(), 1, guess);
+  return register_range_image(image, stamp, watch.ms(), 1, guess, rotation_guess);
 }
 
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
-                                     const RigidTransform* guess) {
+                                     const RigidTransform* guess, const Mat3* rotation_guess) {
+  check_rotation_guess(rotation_guess, guess);
   Stopwatch watch;
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image = organize_depth_downsampled(depth, rows, cols, K, config_.sensor.limits, step);
-  return register_range_image(image, stamp, watch.ms(), step, guess);
+  return register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
 }
 
 template <typename Scalar>
@@ -334,11 +365,13 @@ std::vector<Vec3> Odometry::downsampled_points(const Scalar* data, std::size_t c
 }
 
 template FrameResult Odometry::register_points(const float*, std::size_t, std::size_t, const std::int32_t*, double,
-                                               const RigidTransform*);
+                                               const RigidTransform*, const Mat3*);
 template FrameResult Odometry::register_points(const double*, std::size_t, std::size_t, const std::int32_t*, double,
-                                               const RigidTransform*);
-template FrameResult Odometry::register_organized(const float*, int, int, std::size_t, double, const RigidTransform*);
-template FrameResult Odometry::register_organized(const double*, int, int, std::size_t, double, const RigidTransform*);
+                                               const RigidTransform*, const Mat3*);
+template FrameResult Odometry::register_organized(const float*, int, int, std::size_t, double, const RigidTransform*,
+                                                  const Mat3*);
+template FrameResult Odometry::register_organized(const double*, int, int, std::size_t, double, const RigidTransform*,
+                                                  const Mat3*);
 template std::vector<Vec3> Odometry::downsampled_points(const float*, std::size_t, std::size_t,
                                                         const std::int32_t*) const;
 template std::vector<Vec3> Odometry::downsampled_points(const double*, std::size_t, std::size_t,
@@ -849,8 +882,10 @@ int Odometry::organize_step(double stamp, bool guessed) const {
 }
 
 FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms,
-                                           int organized_step, const RigidTransform* guess) {
+                                           int organized_step, const RigidTransform* guess,
+                                           const Mat3* rotation_guess) {
   check_guess(guess);
+  check_rotation_guess(rotation_guess, guess);
   Stopwatch total;
   FrameResult result;
   result.stamp = stamp;
@@ -865,6 +900,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   // A guess stands for the velocity: registered from it, fused with it, degenerate directions held at it.
   const bool guessed = guess != nullptr && frames_ > 0;
   if (guessed) have_velocity_ = true;
+  const bool rotation_guessed = rotation_guess != nullptr && frames_ > 0;
 
   Stopwatch stage;
   RangeImage sparse;
@@ -913,10 +949,13 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   } else {
     const double dt = stamp - prev_stamp_;
     const bool first_motion_frame = !have_velocity_;
-    const RigidTransform prediction = guessed ? *guess : predict(stamp, &st.persistence);
+    const RigidTransform own_prediction = guessed ? *guess : predict(stamp, &st.persistence);
+    const RigidTransform prediction =
+        rotation_guessed ? with_rotation(own_prediction, *rotation_guess) : own_prediction;
     st.prediction = guessed ? "guess"
                     : have_velocity_ && config_.registration.constant_velocity ? "constant_velocity"
                                                                                 : "standing_still";
+    if (rotation_guessed) st.prediction += "+imu";
     const RegistrationOptions& reg = config_.registration;
     bool coarse_used = false;
     PassOutcome coarse;
@@ -944,6 +983,8 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
       st.recovered = search_unmeasured(prev_features_, features, coarse_ready ? prev_coarse_features_ : prev_features_,
                                        coarse_ready ? coarse_features : features, prediction, &outcome, &st);
     }
+    // (kept with a rotation guess: it starts only where the registration failed or lost support, never on the
+    // yaw-flip drive with a gyro 5 deg off; a gyro turned the wrong way, 24 frames: 8.4 -> 0.23 deg mean, NODE.md)
     if (!first_motion_frame) st.turn_recovered = search_turn(prev_features_, features, prediction, &outcome, &st);
     const RigidTransform& best = outcome.best;
     const MotionStats& best_stats = outcome.stats;
@@ -1054,6 +1095,12 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     if (guessed || !reg.constant_velocity) unmeasured_projector_ = Mat6::Zero();
     else if (first_motion_frame) unmeasured_projector_ = held_projector;
     else unmeasured_projector_ = common_directions(unmeasured_projector_, held_projector, kUnmeasuredCosine);
+    if (rotation_guessed && !unmeasured_projector_.isZero()) {
+      // A gyro measured the rotation: only translations can stay unmeasured.
+      Mat6 translations = Mat6::Zero();
+      translations.topLeftCorner<3, 3>().setIdentity();
+      unmeasured_projector_ = common_directions(unmeasured_projector_, translations, kUnmeasuredCosine);
+    }
     st.unmeasured_directions = static_cast<int>(std::lround(unmeasured_projector_.trace()));
     if (st.registered)
       persistence_.add(motion_difference(result.delta, RigidTransform::identity()), dt);

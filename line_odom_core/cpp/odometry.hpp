@@ -107,7 +107,8 @@ struct FrameStats {
   int held_directions = 0;      // 1..5: a partial estimate, these directions from the prediction; 6: held in full
   Vec6 persistence = Vec6::Ones();  // share of the last motion predicted for this frame, per axis (x y z rx ry rz)
   std::string prediction = "none";  // where the prediction came from: "constant_velocity", "guess" (the caller's),
-                                    // "standing_still" (no velocity yet, or registration.constant_velocity off)
+                                    // "standing_still" (no velocity yet, or registration.constant_velocity off);
+                                    // "+imu" appended when its rotation is the caller's rotation_guess
   std::string failure;          // why, when degenerate
   int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
                                   // still): searched on the next frames
@@ -149,17 +150,21 @@ class Odometry {
   // IMU), T_prev_curr. It replaces the constant-velocity prediction: the registration starts from it, the motion
   // prior is centred on it and degenerate directions are held at it. Throws std::invalid_argument when it is
   // not a finite rigid transform. Ignored on the first frame.
+  // `rotation_guess` (nullable, not with `guess`): the sensor's rotation since the previous frame, R_prev_curr (a
+  // gyro's). It replaces the rotation of the prediction; the translation stays the prediction's (with_rotation).
+  // Also without a velocity yet: the first motion is searched from standing still turned by it.
   // Unorganized points: xyz at data[i * stride + 0..2]; `ring` (nullable) gives the beam of each point.
   template <typename Scalar>
   FrameResult register_points(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
-                              double stamp, const RigidTransform* guess = nullptr);
+                              double stamp, const RigidTransform* guess = nullptr,
+                              const Mat3* rotation_guess = nullptr);
   // Organized cloud (rows x cols, row-major, `stride` elements per point); non-finite points are holes.
   template <typename Scalar>
   FrameResult register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
-                                 const RigidTransform* guess = nullptr);
+                                 const RigidTransform* guess = nullptr, const Mat3* rotation_guess = nullptr);
   // Depth image in metres (row-major rows x cols, 0 / non-finite = no measurement) and intrinsics K.
   FrameResult register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
-                             const RigidTransform* guess = nullptr);
+                             const RigidTransform* guess = nullptr, const Mat3* rotation_guess = nullptr);
   // The valid points of an unorganized cloud after organizing and downsampling, as the pipeline sees them.
   template <typename Scalar>
   std::vector<Vec3> downsampled_points(const Scalar* data, std::size_t count, std::size_t stride,
@@ -167,7 +172,8 @@ class Odometry {
   // Registers an already organized range image (full resolution; downsampling is applied here).
   // `image` organized at `organized_step` (1 = full resolution; the step divides config.downsample).
   FrameResult register_range_image(const RangeImage& image, double stamp, double organize_ms = 0.0,
-                                   int organized_step = 1, const RigidTransform* guess = nullptr);
+                                   int organized_step = 1, const RigidTransform* guess = nullptr,
+                                   const Mat3* rotation_guess = nullptr);
   int organize_step(double stamp, bool guessed = false) const;  // the step the next frame is organized at
 
   void reset(const RigidTransform& pose = RigidTransform::identity());
