@@ -192,6 +192,9 @@ class Odometry {
   // (odometry.cpp); the result the candidates picked near it support most.
   PassOutcome first_motion(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                            const RigidTransform* coarse_motion, FrameStats* st) const;
+  // No velocity yet: the coarse scans' registration, then first_motion from it (or from `prediction`).
+  PassOutcome search_first_motion(const ScanFeatures& cur, const ScanFeatures& coarse_cur,
+                                  const RigidTransform& prediction, FrameStats* st) const;
   PassOutcome register_on_window(const ScanFeatures& cur, const RigidTransform& prediction, FrameStats* st) const;
   bool observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
                                 FrameStats* st) const;
