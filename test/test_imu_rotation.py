@@ -70,8 +70,9 @@ def test_a_gyro_registers_every_yaw_flip(flip_drive):
     """HDL-64E at 1/36 on the yaw-flip drive. From the constant-velocity prediction frame 9 is registered 7.2 deg off
     (unflagged: docs/NODE.md "Turns"), 0.13 deg mean. With the rotation of a MEMS gyro (200 Hz, noise, 0.5 deg/s bias,
     mounted rolled over and turned: GyroRotation and in_sensor_frame) each frame's prediction has the turn, and every
-    frame is registered within 0.03 deg (measured 0.003 deg mean, 0.02 max; the gyro alone is 0.05 deg a frame off);
-    bound 0.3 deg a frame, 0.05 mean. None searched for a turn: the prediction's heading is right."""
+    frame is registered within 0.01 deg (measured 0.004 deg mean, 0.009 max; the gyro alone is 0.10 deg a frame off,
+    max 0.20: a rate step between two samples); bound 0.3 deg a frame, 0.05 mean. None searched for a turn: the
+    prediction's heading is right."""
     poses, _, stamps = flip_drive
     T_sensor_imu = frames.pose_from_params([0.1, 0.2, -0.3, np.pi, 0.0, 0.5], "mount")
     samples, rates = gyro_samples(poses, stamps, rate_hz=200.0, offset=0.0023, noise_std=GYRO_NOISE, bias=GYRO_BIAS,
@@ -83,7 +84,7 @@ def test_a_gyro_registers_every_yaw_flip(flip_drive):
         assert why is None, why
         rotations.append(in_sensor_frame(R_imu, T_sensor_imu))
     gyro_errors = [_angle_deg(R.T @ (np.linalg.inv(poses[k]) @ poses[k + 1])[:3, :3]) for k, R in enumerate(rotations)]
-    assert 0.02 < np.mean(gyro_errors) < 0.2, gyro_errors  # the guess itself is off, the lines correct it
+    assert 0.05 < np.mean(gyro_errors) < 0.3, gyro_errors  # the guess itself is off, the lines correct it
 
     plain = _register_drive(flip_drive)
     plain_errors = np.array([degenerate.frame_error(res.delta, truth)[1] for truth, res in plain])

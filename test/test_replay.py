@@ -245,7 +245,7 @@ def _gyro_bag(path, frames=12):
 def test_replay_with_an_imu_topic_as_the_rotation_guess(tmp_path, capsys):
     # The yaw-flip drive's first 12 scans: from the constant-velocity prediction scan 9 is registered 7.2 deg off
     # (docs/NODE.md "Turns"); with the bag's /imu given by --imu-topic each prediction has the gyro's turn: measured
-    # 0.02 deg max; bound 0.3.
+    # 0.01 deg max; bound 0.3.
     bag = tmp_path / "bag"
     n = _gyro_bag(bag)
     common = ["--set", "downsample=6", "--set", "base_frame=velodyne", "--quiet"]
