@@ -5,6 +5,8 @@
         camera_info:=/camera/depth/camera_info rviz:=true
     ros2 launch line_odom line_odom.launch.py params_file:=my_robot.yaml guess_odom:=/wheel/odometry
         (my_robot.yaml with guess: enabled: true - docs/NODE.md, "Motion guess")
+    ros2 launch line_odom line_odom.launch.py params_file:=my_robot.yaml imu:=/imu/data
+        (my_robot.yaml with imu: enabled: true - docs/NODE.md, "IMU rotation guess")
 
 The node also gets the shipped Fast DDS large-message profile (config/fastdds_large_messages.xml) unless
 fastdds_profile:=<other file> is given; export the same profile for the driver (see docs/NODE.md).
@@ -46,6 +48,9 @@ def generate_launch_description():
         DeclareLaunchArgument("guess_odom", default_value="guess_odom",
                               description="nav_msgs/Odometry motion guess (wheel odometry) topic, read with "
                                           "guess.enabled: true in the parameter file"),
+        DeclareLaunchArgument("imu", default_value="imu",
+                              description="sensor_msgs/Imu topic whose gyro turns the prediction, read with "
+                                          "imu.enabled: true in the parameter file"),
         DeclareLaunchArgument("odom", default_value="odom", description="Odometry output topic"),
         DeclareLaunchArgument("path", default_value="path", description="Path output topic"),
         DeclareLaunchArgument("fastdds_profile", default_value=_share("config", "fastdds_large_messages.xml"),
@@ -69,6 +74,7 @@ def generate_launch_description():
             ("depth/image", LaunchConfiguration("depth_image")),
             ("depth/camera_info", LaunchConfiguration("camera_info")),
             ("guess_odom", LaunchConfiguration("guess_odom")),
+            ("imu", LaunchConfiguration("imu")),
             ("odom", LaunchConfiguration("odom")),
             ("path", LaunchConfiguration("path")),
         ],

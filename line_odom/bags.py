@@ -35,6 +35,7 @@ POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 IMAGE = "sensor_msgs/msg/Image"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 ODOMETRY = "nav_msgs/msg/Odometry"
+IMU = "sensor_msgs/msg/Imu"
 PATH = "nav_msgs/msg/Path"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
@@ -140,6 +141,20 @@ class _Messages:
             header=self.header(stamp_ns, frame_id), child_frame_id=child_frame_id,
             pose=self.T["geometry_msgs/msg/PoseWithCovariance"](pose=self.pose(T), covariance=np.zeros(36)),
             twist=self.T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
+
+    def imu(self, stamp_ns: int, frame_id: str, angular_velocity):
+        """A sensor_msgs/Imu carrying only a gyro's rate (rad/s): no orientation, no linear acceleration (their
+        covariance element 0 is -1, the message convention for 'not provided')."""
+        Vector3 = self.T["geometry_msgs/msg/Vector3"]
+        w = [float(v) for v in angular_velocity]
+        unknown = np.zeros(9)
+        unknown[0] = -1.0
+        return self.T[IMU](header=self.header(stamp_ns, frame_id),
+                           orientation=self.T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                           orientation_covariance=unknown.copy(), angular_velocity=Vector3(x=w[0], y=w[1], z=w[2]),
+                           angular_velocity_covariance=np.zeros(9),
+                           linear_acceleration=Vector3(x=0.0, y=0.0, z=0.0),
+                           linear_acceleration_covariance=unknown.copy())
 
     def path(self, stamp_ns: int, frame_id: str, stamps_ns, poses):
         PoseStamped = self.T["geometry_msgs/msg/PoseStamped"]

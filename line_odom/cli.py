@@ -71,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--guess-topic", default=None, metavar="TOPIC",
                    help="a nav_msgs/Odometry topic of the bag (wheel odometry) as the node's motion guess "
                         "(guess.enabled)")
+    p.add_argument("--imu-topic", default=None, metavar="TOPIC",
+                   help="a sensor_msgs/Imu topic of the bag whose gyro rates turn the node's prediction "
+                        "(imu.enabled)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no table")
 
     p = sub.add_parser("eval", help="metrics of an estimated trajectory against ground truth (TUM or KITTI files)")
@@ -159,7 +162,8 @@ def cmd_replay(args) -> int:
     result = replay.replay_bag(args.bag, args.out, params=args.params, overrides=parse_overrides(args.overrides),
                                realtime=args.realtime, rate=args.rate,
                                out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
-                               frames=args.frames, progress=not args.quiet, guess_topic=args.guess_topic)
+                               frames=args.frames, progress=not args.quiet, guess_topic=args.guess_topic,
+                               imu_topic=args.imu_topic)
     if not args.quiet:
         print(evaluation.format_table(result.metrics, f"replay {args.bag}"))
         print(f"wrote {', '.join(str(p) for p in result.files)}")

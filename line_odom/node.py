@@ -23,7 +23,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry, Path
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 from std_srvs.srv import Trigger
 
 from line_odom.processor import NODE_PARAMETERS, NodeSettings, OdometryProcessor
@@ -141,6 +141,12 @@ class LineOdomNode(Node):
                                    reliability=qos_profile_sensor_data.reliability)
             self.create_subscription(Odometry, "guess_odom", self.processor.add_guess, guess_qos)
             inputs.append(self.resolve_topic_name("guess_odom") + " (motion guess)")
+        if s.imu_enabled:
+            # 100-400 Hz: a deep best-effort queue, so a registration holding the GIL briefly loses no sample
+            imu_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=400,
+                                 reliability=qos_profile_sensor_data.reliability)
+            self.create_subscription(Imu, "imu", self.processor.add_imu, imu_qos)
+            inputs.append(self.resolve_topic_name("imu") + " (gyro rotation guess)")
         if s.base_to_sensor_from_tf:
             from tf2_msgs.msg import TFMessage
 

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from line_odom import convert, frames
+from line_odom.imu_rotation import GyroRotation, in_sensor_frame
 from line_odom.motion_guess import MotionGuess
 from line_odom.static_tf import StaticTransforms, TransformError
 from line_odom_core.config import Config, config_schema, load_config
@@ -40,6 +41,7 @@ class NodeParameter:
     min: float | None = None
     max: float | None = None
     choices: tuple[str, ...] | None = None
+    vector: bool = False  # a list of 3 numbers (x y z), not a pose
 
 
 NODE_PARAMETERS: tuple[NodeParameter, ...] = (
@@ -73,6 +75,18 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
                   "(extrapolated); a scan outside the poses is registered with the constant-velocity prediction "
                   "and counted (frames_unguessed)", 0.0, 10.0),
     NodeParameter("guess.window", float, 5.0, "seconds of guess_odom poses kept", 0.1, 86400.0),
+    NodeParameter("imu.enabled", bool, False, "turn each scan's prediction by the rotation integrated from the gyro "
+                  "on topic 'imu' (sensor_msgs/Imu angular_velocity) between the previous and this scan's stamp; the "
+                  "translation stays the constant-velocity prediction's"),
+    NodeParameter("imu.base_to_imu", list, [0.0] * 6, "pose of the IMU in the base frame, T_base_imu: "
+                  "[x, y, z, roll, pitch, yaw] (m, rad) or [x, y, z, qx, qy, qz, qw]; with base_to_sensor_from_tf "
+                  "it comes from /tf_static instead (base_frame -> the Imu messages' header.frame_id)"),
+    NodeParameter("imu.gyro_bias", list, [0.0] * 3, "gyro bias (rad/s, IMU axes) subtracted from every "
+                  "angular_velocity", vector=True),
+    NodeParameter("imu.max_gap", float, 0.05, "seconds without a gyro sample a scan interval may contain (also "
+                  "between a scan's stamp and the nearest sample past it); a longer gap: the scan uses the "
+                  "plain prediction and counts in frames_without_imu", 0.001, 10.0),
+    NodeParameter("imu.window", float, 5.0, "seconds of gyro samples kept", 0.1, 86400.0),
 )
 NODE_PARAMETER_NAMES = {p.name for p in NODE_PARAMETERS}
 IGNORED_KEYS = {"use_sim_time", "preset"}
@@ -87,6 +101,14 @@ def validate_node_value(name: str, value: Any) -> Any:
         if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
             raise ValueError(f"{name}: expected a list of numbers, got {value!r}")
         values = list(value)
+        if spec.vector:
+            try:
+                vector = [float(v) for v in values]
+            except (TypeError, ValueError):
+                vector = []
+            if len(vector) != 3 or not all(math.isfinite(v) for v in vector):
+                raise ValueError(f"{name}: expected 3 finite numbers [x, y, z], got {values!r}")
+            return vector
         frames.pose_from_params(values, name)  # validates length and values
         return [float(v) for v in values]
     bad = f"{name}: expected {spec.type.__name__}"
@@ -138,6 +160,11 @@ class NodeSettings:
     guess_enabled: bool = False
     guess_tolerance: float = 0.1
     guess_window: float = 5.0
+    imu_enabled: bool = False
+    imu_base_to_imu: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
+    imu_gyro_bias: list = dataclasses.field(default_factory=lambda: [0.0] * 3)
+    imu_max_gap: float = 0.05
+    imu_window: float = 5.0
 
     @staticmethod
     def attribute(name: str) -> str:
@@ -160,6 +187,7 @@ class NodeSettings:
         # parse once so a bad pose fails here, not on the first frame
         frames.pose_from_params(settings.base_to_sensor, "base_to_sensor")
         frames.pose_from_params(settings.initial_pose, "initial_pose")
+        frames.pose_from_params(settings.imu_base_to_imu, "imu.base_to_imu")
         return settings
 
     def as_dict(self) -> dict[str, Any]:
@@ -236,6 +264,15 @@ class OdometryProcessor:
                                   window=self.settings.guess_window) if self.settings.guess_enabled else None)
         if self.guess is not None:
             self.counters.update(frames_guessed=0, frames_unguessed=0, guess_rejected=0)
+        self._imu_lock = threading.Lock()
+        self.gyro = (GyroRotation(max_gap=self.settings.imu_max_gap, window=self.settings.imu_window,
+                                  bias=self.settings.imu_gyro_bias) if self.settings.imu_enabled else None)
+        # T_base_imu: the parameter's, or with base_to_sensor_from_tf looked up on /tf_static (None until then)
+        self.T_base_imu: np.ndarray | None = (
+            None if self.settings.base_to_sensor_from_tf
+            else frames.pose_from_params(self.settings.imu_base_to_imu, "imu.base_to_imu"))
+        if self.gyro is not None:
+            self.counters.update(frames_imu=0, frames_without_imu=0, imu_rejected=0)
         self.static_tf = StaticTransforms() if self.settings.base_to_sensor_from_tf else None
         self._tf_lock = threading.Lock()
         self.mounted_frame: str | None = None  # the sensor frame whose /tf_static mounting is T_base_sensor
@@ -322,6 +359,20 @@ class OdometryProcessor:
             return False
         return True
 
+    def add_imu(self, msg) -> bool:
+        """One sensor_msgs/Imu (imu.enabled): its angular velocity is kept; an unusable message (no or non-finite
+        rate, another frame_id, a stamp out of order) is logged and counted (imu_rejected)."""
+        if self.gyro is None:
+            return False
+        try:
+            with self._imu_lock:  # (not the frame lock: the executor must not wait for a registration)
+                if not self.gyro.add(msg):
+                    self._info("imu stamp went back by more than imu.window: its earlier samples are forgotten")
+        except convert.ConversionError as err:
+            self._reject("imu_rejected", str(err), "rejected imu message")
+            return False
+        return True
+
     def add_static_tf(self, msg) -> bool:
         """One tf2_msgs/TFMessage from /tf_static (base_to_sensor_from_tf); an unusable transform is logged and
         counted (tf_rejected), the message's others are kept."""
@@ -385,6 +436,38 @@ class OdometryProcessor:
                                            f"registration.max_rotation_deg {max_r:g} deg", "ignored motion guess")
             return None, T
         return delta, T
+
+    def _imu_rotation(self, stamp_ns: int) -> np.ndarray | None:
+        """The sensor's rotation since the previous frame by the gyro (R_prev_curr), or None (first frame, the
+        samples do not cover the interval, or the IMU's mounting is not known yet: counted in frames_without_imu)."""
+        last = self._last_stamp_ns
+        if self.gyro is None or last is None:
+            return None
+        with self._imu_lock:
+            R_imu, why = self.gyro.rotation(last, stamp_ns)
+            imu_frame = self.gyro.frame_id
+        if R_imu is not None and self.T_base_imu is None:
+            base = self.settings.base_frame
+            T = None
+            if imu_frame:
+                with self._tf_lock:
+                    T = self.static_tf.lookup(base, imu_frame)
+            if T is None:
+                why = (f"no transform {base} -> {imu_frame} on /tf_static yet (the IMU's mounting, "
+                       "base_to_sensor_from_tf)" if imu_frame else
+                       "the Imu messages' header.frame_id is empty: with base_to_sensor_from_tf the IMU's mounting "
+                       "is looked up on /tf_static by it")
+                R_imu = None
+            else:
+                self.T_base_imu = T
+                rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
+                self._info(f"IMU mounting from /tf_static: {base} -> {imu_frame} = "
+                           f"{[round(float(v), 6) for v in (*T[:3, 3], *rpy)]} [x, y, z, roll, pitch, yaw]")
+        if R_imu is None:
+            self._reject("frames_without_imu", f"scan at {stamp_ns * 1e-9:.3f} s registered without the gyro: {why}",
+                         "plain prediction")
+            return None
+        return in_sensor_frame(R_imu, self.T_sensor_base @ self.T_base_imu)
 
     @property
     def has_camera_info(self) -> bool:
@@ -472,9 +555,17 @@ class OdometryProcessor:
                     self.counters["resets"] += 1
             first = self._last_stamp_ns is None
             guess, guess_pose = self._guess_delta(stamp_ns)
+            rotation = self._imu_rotation(stamp_ns)
+            extra = {}  # (keywords only when there is a guess: engines without them keep working)
+            if guess is not None and rotation is not None:  # the source's translation, the gyro's rotation
+                guess = guess.copy()
+                guess[:3, :3] = rotation
+            if guess is not None:
+                extra["guess"] = guess
+            elif rotation is not None:
+                extra["rotation_guess"] = rotation
             try:
-                # (the guess keyword only when there is one: engines without it keep working)
-                result = run(stamp) if guess is None else run(stamp, guess=guess)
+                result = run(stamp, **extra)
             except ValueError as err:
                 self._reject("frames_failed", f"registration rejected the frame: {err}")
                 return None
@@ -493,6 +584,9 @@ class OdometryProcessor:
                 if not first:
                     with self._count_lock:
                         self.counters["frames_guessed" if guess is not None else "frames_unguessed"] += 1
+            if rotation is not None:
+                with self._count_lock:
+                    self.counters["frames_imu"] += 1
         end = time.perf_counter()
         out.latency_ms = 1e3 * ((time.monotonic() - receive_time) if receive_time is not None else (end - t0))
         with self._count_lock:
@@ -588,6 +682,9 @@ class OdometryProcessor:
         if self.guess is not None:
             with self._guess_lock:
                 values["guess_poses"] = len(self.guess)  # kept from guess_odom (guess.window)
+        if self.gyro is not None:
+            with self._imu_lock:
+                values["imu_samples"] = len(self.gyro)  # kept from imu (imu.window)
         if self.static_tf is not None:
             with self._tf_lock:
                 known = len(self.static_tf)
@@ -635,6 +732,8 @@ class OdometryProcessor:
                           ("frames_duplicate", "frame(s) with a repeated stamp"),
                           ("frames_unguessed", "frame(s) without a guess_odom pose (constant-velocity prediction)"),
                           ("guess_rejected", "guess_odom message(s) rejected"),
+                          ("frames_without_imu", "frame(s) without the gyro's rotation (plain prediction)"),
+                          ("imu_rejected", "imu message(s) rejected"),
                           ("frames_no_extrinsic", "frame(s) dropped: the sensor's mounting not on /tf_static yet"),
                           ("tf_rejected", "/tf_static transform(s) rejected"),
                           ("point_times_ignored", "frame(s) registered without deskewing (unusable point times)")):

@@ -97,17 +97,20 @@ def _rclpy_types(kind: str):
 
 
 def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frames: int | None = None,
-                   progress: ProgressBar | None = None, guess_topic: str | None = None) -> ReplayRun:
+                   progress: ProgressBar | None = None, guess_topic: str | None = None,
+                   imu_topic: str | None = None) -> ReplayRun:
     """Every frame of the input topic through the processor, in bag order (with the nav_msgs/Odometry messages of
-    guess_topic as the motion guess, guess.enabled)."""
+    guess_topic as the motion guess, guess.enabled, and the sensor_msgs/Imu messages of imu_topic as the gyro,
+    imu.enabled)."""
     from nav_msgs.msg import Odometry
     from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import Imu
 
     types = _rclpy_types(inp.kind)
     total = reader.counts.get(inp.topic, 0)
     if frames is not None:
         total = min(total, frames)
-    topics = [inp.topic] + ([inp.info_topic] if inp.info_topic else []) + ([guess_topic] if guess_topic else [])
+    topics = [inp.topic] + ([inp.info_topic] if inp.info_topic else [])
     if inp.info_topic:  # the intrinsics before the first image, whatever the order in the bag
         for message in reader.messages([inp.info_topic]):
             processor.set_camera_info(deserialize_message(message.raw, types["info"]))
@@ -120,6 +123,9 @@ def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frame
     if guess_topic:  # offline, every pose of the guess source is known: each frame's is interpolated, never
         for message in reader.messages([guess_topic]):  # extrapolated (guess.window: replay_bag keeps them all)
             processor.add_guess(deserialize_message(message.raw, Odometry))
+    if imu_topic:  # so is every gyro sample (imu.window: replay_bag keeps them all)
+        for message in reader.messages([imu_topic]):
+            processor.add_imu(deserialize_message(message.raw, Imu))
     stamps, poses, odom_msgs, latencies = [], [], [], []
     n_in = 0
     for message in reader.messages(topics):
@@ -128,8 +134,6 @@ def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frame
         try:
             if message.topic == inp.info_topic:
                 processor.set_camera_info(deserialize_message(message.raw, types["info"]))
-                continue
-            if message.topic == guess_topic:  # (all read before the first frame, below)
                 continue
             msg = deserialize_message(message.raw, types[inp.kind])
         except Exception as exc:  # rclpy raises its own error types for bad CDR
@@ -195,9 +199,10 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                overrides: Mapping[str, Any] | None = None, realtime: bool = False, out_bag: str | Path | None = None,
                out_bag_storage: str = "sqlite3", topic: str | None = None, frames: int | None = None,
                progress: bool = True, title: str | None = None, rate: float = 1.0,
-               guess_topic: str | None = None) -> ReplayResult:
+               guess_topic: str | None = None, imu_topic: str | None = None) -> ReplayResult:
     """Replay `bag` through the node and write the results to `out_dir` (see the module docstring). guess_topic: a
-    nav_msgs/Odometry topic of the bag (wheel odometry) given to the node as its motion guess (guess.enabled)."""
+    nav_msgs/Odometry topic of the bag (wheel odometry) given to the node as its motion guess (guess.enabled);
+    imu_topic: a sensor_msgs/Imu topic of the bag whose gyro turns the node's prediction (imu.enabled)."""
     if params is not None and not Path(params).is_file():
         raise FileNotFoundError(f"{params}: no such parameter file")
     with bags.BagReader(bag) as reader:
@@ -209,6 +214,12 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                                  f"{found + ', expected ' + bags.ODOMETRY if found else 'not in the bag'}")
             # (in-process every pose is read before the first frame and kept; in real time they arrive as published)
             overrides = {**({} if realtime else {"guess.window": 86400.0}), **(overrides or {}), "guess.enabled": True}
+        if imu_topic is not None:
+            if reader.topics.get(imu_topic) != bags.IMU:
+                found = reader.topics.get(imu_topic)
+                raise ValueError(f"{reader.path}: imu topic {imu_topic} is "
+                                 f"{found + ', expected ' + bags.IMU if found else 'not in the bag'}")
+            overrides = {**({} if realtime else {"imu.window": 86400.0}), **(overrides or {}), "imu.enabled": True}
         config, settings = node_settings(inp.kind, params, overrides)
         if settings.base_to_sensor_from_tf and reader.topics.get(bags.TF_STATIC_TOPIC) != bags.TF_MESSAGE:
             raise ValueError(f"{reader.path}: base_to_sensor_from_tf is set but the bag has no {bags.TF_STATIC_TOPIC} "
@@ -221,12 +232,13 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                 from line_odom import replay_realtime
 
                 run = replay_realtime.run_realtime(reader, inp, params=params, overrides=overrides, frames=frames,
-                                                   progress=bar, rate=rate, guess_topic=guess_topic)
+                                                   progress=bar, rate=rate, guess_topic=guess_topic,
+                                                   imu_topic=imu_topic)
             else:
                 from line_odom.processor import OdometryProcessor
 
                 run = run_in_process(reader, inp, OdometryProcessor(config, settings), frames=frames, progress=bar,
-                                     guess_topic=guess_topic)
+                                     guess_topic=guess_topic, imu_topic=imu_topic)
         if len(run.estimate) == 0:
             raise RuntimeError(f"{bag}: the node produced no pose from {run.frames_in} frame(s) on {inp.topic} "
                                f"(counters: {run.counters})")

@@ -45,7 +45,8 @@ def _ros_value(value: Any) -> str:
     return str(value)
 
 
-def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any], guess_topic: str | None = None) -> list[str]:
+def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any], guess_topic: str | None = None,
+                 imu_topic: str | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "line_odom.node", "--ros-args", "-p", f"preset:={preset_or_params}",
            "-p", "use_sim_time:=true", "-p", f"input:={inp.kind}", "-p", "publish_tf:=false"]
     for name, value in overrides.items():
@@ -56,6 +57,8 @@ def node_command(inp, preset_or_params: str, overrides: Mapping[str, Any], guess
         cmd += ["-r", f"depth/image:={inp.topic}", "-r", f"depth/camera_info:={inp.info_topic}"]
     if guess_topic:
         cmd += ["-r", f"guess_odom:={guess_topic}"]
+    if imu_topic:
+        cmd += ["-r", f"imu:={imu_topic}"]
     cmd += ["-r", f"odom:={NODE_OUTPUT_TOPIC}"]
     return cmd
 
@@ -152,9 +155,10 @@ def _tail(path: Path, lines: int = 5) -> str:
 
 def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
                  overrides: Mapping[str, Any] | None = None, frames: int | None = None, progress=None,
-                 rate: float = 1.0, guess_topic: str | None = None):
+                 rate: float = 1.0, guess_topic: str | None = None, imu_topic: str | None = None):
     """Publish the bag at `rate` x its own pace (like `ros2 bag play --rate`) to the node in its own process
-    (guess_topic: a nav_msgs/Odometry topic published with it, the node's guess_odom)."""
+    (guess_topic: a nav_msgs/Odometry topic published with it, the node's guess_odom; imu_topic: a sensor_msgs/Imu
+    topic published with it, the node's imu)."""
     if not (rate > 0.0 and rate < float("inf")):
         raise ValueError(f"rate: expected a positive factor, got {rate}")
     import rclpy
@@ -162,7 +166,7 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+    from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
     from line_odom import convert
     from line_odom.replay import PRESET_FOR_INPUT, ReplayRun, node_settings
@@ -181,7 +185,7 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         total = min(total, frames)
     log_file = Path(tempfile.mkstemp(prefix="line_odom_node_", suffix=".log")[1])
     with open(log_file, "wb") as log:
-        proc = subprocess.Popen(node_command(inp, preset, overrides, guess_topic), env=env, stdout=log,
+        proc = subprocess.Popen(node_command(inp, preset, overrides, guess_topic, imu_topic), env=env, stdout=log,
                                 stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -201,6 +205,8 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
     guess_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     guess_pub = node.create_publisher(Odometry, guess_topic, guess_qos) if guess_topic else None
+    imu_pub = node.create_publisher(Imu, imu_topic, QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE)) \
+        if imu_topic else None
     if static_tf:  # latched for the node, as robot_state_publisher does
         from rclpy.qos import DurabilityPolicy
         from tf2_msgs.msg import TFMessage
@@ -216,7 +222,8 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     try:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while (data_pub.get_subscription_count() < 1 or sub.get_publisher_count() < 1
-               or (guess_pub is not None and guess_pub.get_subscription_count() < 1)):
+               or (guess_pub is not None and guess_pub.get_subscription_count() < 1)
+               or (imu_pub is not None and imu_pub.get_subscription_count() < 1)):
             if proc.poll() is not None:
                 raise RuntimeError(f"the node exited with code {proc.returncode} before subscribing: "
                                    f"{_tail(log_file)}")
@@ -228,7 +235,7 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         wall0 = bag0 = None
         n_in = 0
         for message in reader.messages([inp.topic] + ([inp.info_topic] if inp.info_topic else [])
-                                       + ([guess_topic] if guess_topic else [])):
+                                       + ([guess_topic] if guess_topic else []) + ([imu_topic] if imu_topic else [])):
             if n_in >= total:
                 break
             if wall0 is None:
@@ -246,6 +253,9 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
                 continue
             if message.topic == guess_topic:
                 guess_pub.publish(message.raw)
+                continue
+            if message.topic == imu_topic:
+                imu_pub.publish(message.raw)
                 continue
             published[header_stamp_ns(message.raw)] = time.monotonic()
             data_pub.publish(message.raw)

@@ -113,7 +113,7 @@ class FrameResult:
                               carried (registration.persistence_window; 1 = constant velocity)
       prediction: str         where this frame's prediction came from: "constant_velocity", "guess" (the caller's
                               motion guess), "standing_still" (no velocity yet, or constant_velocity off), "none"
-                              (first frame)
+                              (first frame); with a rotation_guess "constant_velocity+imu" / "standing_still+imu"
       failure: str            why, when degenerate ("" otherwise)
       unmeasured_directions: int  directions of the velocity no frame has measured since the first motion was held
                               at standing still (after a start, reset or stamp gap where the scene did not observe
@@ -145,15 +145,19 @@ class Odometry:
 
     def __init__(self, settings: dict[str, bool | int | float | str]) -> None: ...
     # guess: (4, 4) T_prev_curr of the sensor from another source (wheel odometry, IMU), or None
+    # rotation_guess: (3, 3) R_prev_curr of the sensor (a gyro's), or None; replaces only the prediction's rotation
     def register_points(self, xyz: npt.NDArray[np.floating], stamp: float,
                         ring: npt.NDArray[np.int32] | None = None,
                         guess: npt.NDArray[np.float64] | None = None,
+                        rotation_guess: npt.NDArray[np.float64] | None = None,
                         time: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # xyz (N, k>=3), time (N,)
     def register_organized(self, xyz: npt.NDArray[np.floating], stamp: float,
                            guess: npt.NDArray[np.float64] | None = None,
+                           rotation_guess: npt.NDArray[np.float64] | None = None,
                            time: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # (H, W, k>=3), (H, W)
     def register_depth(self, depth: npt.NDArray[np.float32], K: npt.NDArray[np.float64],
-                       stamp: float, guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...
+                       stamp: float, guess: npt.NDArray[np.float64] | None = None,
+                       rotation_guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...
     def downsampled_points(self, xyz: npt.NDArray[np.floating],
                            ring: npt.NDArray[np.int32] | None = None) -> npt.NDArray[np.float64]: ...
     def reset(self, pose: npt.NDArray[np.float64]) -> None: ...

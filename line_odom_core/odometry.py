@@ -87,6 +87,21 @@ def _guess(value: Any) -> np.ndarray | None:
     return None if value is None else _pose("guess", value)
 
 
+def _rotation_guess(value: Any, guess: Any) -> np.ndarray | None:
+    if value is None:
+        return None
+    if guess is not None:
+        raise ValueError("rotation_guess: expected no guess beside it (guess replaces the whole prediction, "
+                         "rotation_guess only its rotation); pass one of them")
+    R = np.asarray(value, dtype=float)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise ValueError(f"rotation_guess: expected a finite 3x3 rotation matrix R_prev_curr, got shape {R.shape}"
+                         + ("" if R.shape != (3, 3) else " with non-finite values"))
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise ValueError("rotation_guess: expected a rotation matrix R_prev_curr (orthonormal, determinant +1)")
+    return np.ascontiguousarray(R)
+
+
 class Odometry:
     """Frame-to-frame line-intersection odometry (paper §6.3) with a constant-velocity motion model.
 
@@ -106,7 +121,8 @@ class Odometry:
 
     # ---- registration ----
     def register_points(self, xyz: np.ndarray, stamp: float, *, ring: np.ndarray | None = None,
-                        guess: np.ndarray | None = None, time: np.ndarray | None = None) -> FrameResult:
+                        guess: np.ndarray | None = None, rotation_guess: np.ndarray | None = None,
+                        time: np.ndarray | None = None) -> FrameResult:
         """Unorganized points (N, 3) in metres (NaN/inf = dropped); `ring` (N,) integer beam index per point, or
         None to organize by elevation with the configured sensor model.
 
@@ -120,7 +136,13 @@ class Odometry:
         guess (every register_* method): the sensor's motion since the previous frame from another source (wheel
         odometry, an IMU), T_prev_curr (4x4) in the sensor frame, or None. It replaces the constant-velocity
         prediction: the registration starts from it, the motion prior is centred on it, and directions the scan
-        does not observe are held at it (stats["prediction"] == "guess"). Ignored on the first frame."""
+        does not observe are held at it (stats["prediction"] == "guess"). Ignored on the first frame.
+
+        rotation_guess (every register_* method; not with guess): the sensor's rotation since the previous frame,
+        R_prev_curr (3x3) in the sensor frame, e.g. integrated from a gyro (line_odom.imu_rotation). It replaces the
+        rotation of the prediction; the translation stays the engine's own (constant velocity, or standing still
+        before the first motion), turned with the rotation (stats["prediction"] ends in "+imu"). The registration
+        starts from it, the motion prior is centred on it and held directions are held at it."""
         pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
         ring_arr = None
         if ring is not None:
@@ -130,17 +152,19 @@ class Odometry:
                                  f"{ring_arr.shape} and dtype {ring_arr.dtype}")
             ring_arr = np.ascontiguousarray(ring_arr, dtype=np.int32)
         times = _times(time, (pts.shape[0],), "one time per point")
-        return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr, _guess(guess), times))
+        return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr, _guess(guess),
+                                                       _rotation_guess(rotation_guess, guess), times))
 
     def register_organized(self, xyz: np.ndarray, stamp: float, *, guess: np.ndarray | None = None,
-                           time: np.ndarray | None = None) -> FrameResult:
+                           rotation_guess: np.ndarray | None = None, time: np.ndarray | None = None) -> FrameResult:
         """Organized points (H, W, 3): rows = rings or pixel rows; NaN/inf/zero points are holes; `time` (H, W)."""
         pts = _float_array("xyz", xyz, 3, 3, "an (H, W, 3) organized point array")
         times = _times(time, pts.shape[:2], "one time per point")
-        return self._wrap(self._engine.register_organized(pts, _stamp(stamp), _guess(guess), times))
+        return self._wrap(self._engine.register_organized(pts, _stamp(stamp), _guess(guess),
+                                                          _rotation_guess(rotation_guess, guess), times))
 
     def register_depth(self, depth: np.ndarray, K: np.ndarray, stamp: float, *,
-                       guess: np.ndarray | None = None) -> FrameResult:
+                       guess: np.ndarray | None = None, rotation_guess: np.ndarray | None = None) -> FrameResult:
         """Depth image (H, W) in metres (0/NaN = no measurement) and pinhole intrinsics K (3, 3)."""
         d = _float_array("depth", depth, 2, None, "an (H, W) depth image in metres")
         K_arr = np.asarray(K, dtype=float)
@@ -148,7 +172,8 @@ class Odometry:
             raise ValueError(f"K: expected finite 3x3 intrinsics with fx, fy > 0, got {K_arr.tolist()}")
         with np.errstate(over="ignore"):  # depths beyond float32 become inf: holes, like any out-of-range depth
             d32 = np.ascontiguousarray(d, dtype=np.float32)
-        return self._wrap(self._engine.register_depth(d32, K_arr, _stamp(stamp), _guess(guess)))
+        return self._wrap(self._engine.register_depth(d32, K_arr, _stamp(stamp), _guess(guess),
+                                                      _rotation_guess(rotation_guess, guess)))
 
     def reset(self, pose: np.ndarray | None = None) -> None:
         """Forget the previous scan and the velocity; the next frame gets `pose` (default identity)."""

@@ -950,6 +950,7 @@ const double* time_pointer(const std::optional<TimeArray>& time, const std::vect
 line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& xyz, double stamp,
                                        const std::optional<py::array_t<std::int32_t>>& ring,
                                        const std::optional<line_odom::Mat4>& guess,
+                                       const std::optional<line_odom::Mat3>& rotation_guess,
                                        const std::optional<TimeArray>& time) {
   const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
   const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
@@ -957,13 +958,15 @@ line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& 
   const double* time_ptr = time_pointer(time, {xyz.shape(0)}, "one time (s from the stamp) per point, shape (N,)");
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
+  const line_odom::Mat3* rotation_ptr = rotation_guess ? &*rotation_guess : nullptr;
   const bool is_float = py::isinstance<py::array_t<float>>(xyz);
   const void* data = xyz.data();
   py::gil_scoped_release release;
   try {
-    return is_float
-               ? o.register_points(static_cast<const float*>(data), n, stride, ring_ptr, stamp, guess_ptr, time_ptr)
-               : o.register_points(static_cast<const double*>(data), n, stride, ring_ptr, stamp, guess_ptr, time_ptr);
+    return is_float ? o.register_points(static_cast<const float*>(data), n, stride, ring_ptr, stamp, guess_ptr,
+                                        rotation_ptr, time_ptr)
+                    : o.register_points(static_cast<const double*>(data), n, stride, ring_ptr, stamp, guess_ptr,
+                                        rotation_ptr, time_ptr);
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
@@ -971,6 +974,7 @@ line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& 
 
 line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::array& xyz, double stamp,
                                           const std::optional<line_odom::Mat4>& guess,
+                                          const std::optional<line_odom::Mat3>& rotation_guess,
                                           const std::optional<TimeArray>& time) {
   const std::size_t stride = point_stride(xyz, 3, "an (H, W, 3) organized point array");
   const int rows = static_cast<int>(xyz.shape(0)), cols = static_cast<int>(xyz.shape(1));
@@ -978,13 +982,15 @@ line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::arra
       time_pointer(time, {xyz.shape(0), xyz.shape(1)}, "one time (s from the stamp) per point, shape (H, W)");
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
+  const line_odom::Mat3* rotation_ptr = rotation_guess ? &*rotation_guess : nullptr;
   const bool is_float = py::isinstance<py::array_t<float>>(xyz);
   const void* data = xyz.data();
   py::gil_scoped_release release;
   try {
-    return is_float
-               ? o.register_organized(static_cast<const float*>(data), rows, cols, stride, stamp, guess_ptr, time_ptr)
-               : o.register_organized(static_cast<const double*>(data), rows, cols, stride, stamp, guess_ptr, time_ptr);
+    return is_float ? o.register_organized(static_cast<const float*>(data), rows, cols, stride, stamp, guess_ptr,
+                                           rotation_ptr, time_ptr)
+                    : o.register_organized(static_cast<const double*>(data), rows, cols, stride, stamp, guess_ptr,
+                                           rotation_ptr, time_ptr);
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
@@ -993,15 +999,17 @@ line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::arra
 line_odom::FrameResult register_depth(line_odom::Odometry& o,
                                       const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
                                       const line_odom::Mat3& K, double stamp,
-                                      const std::optional<line_odom::Mat4>& guess) {
+                                      const std::optional<line_odom::Mat4>& guess,
+                                      const std::optional<line_odom::Mat3>& rotation_guess) {
   if (depth.ndim() != 2) throw py::value_error("depth: expected an (H, W) depth image in metres");
   const int rows = static_cast<int>(depth.shape(0)), cols = static_cast<int>(depth.shape(1));
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
+  const line_odom::Mat3* rotation_ptr = rotation_guess ? &*rotation_guess : nullptr;
   const float* data = depth.data();
   py::gil_scoped_release release;
   try {
-    return o.register_depth(data, rows, cols, K, stamp, guess_ptr);
+    return o.register_depth(data, rows, cols, K, stamp, guess_ptr, rotation_ptr);
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
@@ -1121,11 +1129,11 @@ PYBIND11_MODULE(_core, m) {
     py::class_<Odometry>(m, "Odometry", "Stateful frame-to-frame odometry; settings: dict of dotted names.")
         .def(py::init(&ob::make_odometry), py::arg("settings"))
         .def("register_points", &ob::register_points, py::arg("xyz"), py::arg("stamp"), py::arg("ring") = py::none(),
-             py::arg("guess") = py::none(), py::arg("time") = py::none())
+             py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none(), py::arg("time") = py::none())
         .def("register_organized", &ob::register_organized, py::arg("xyz"), py::arg("stamp"),
-             py::arg("guess") = py::none(), py::arg("time") = py::none())
+             py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none(), py::arg("time") = py::none())
         .def("register_depth", &ob::register_depth, py::arg("depth"), py::arg("K"), py::arg("stamp"),
-             py::arg("guess") = py::none())
+             py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none())
         .def("downsampled_points", &ob::downsampled_points, py::arg("xyz"), py::arg("ring") = py::none())
         .def("reset",
              [](Odometry& o, const line_odom::Mat4& pose) { o.reset(line_odom::RigidTransform::from_matrix(pose)); },

@@ -111,7 +111,8 @@ struct FrameStats {
   int held_directions = 0;      // 1..5: a partial estimate, these directions from the prediction; 6: held in full
   Vec6 persistence = Vec6::Ones();  // share of the last motion predicted for this frame, per axis (x y z rx ry rz)
   std::string prediction = "none";  // where the prediction came from: "constant_velocity", "guess" (the caller's),
-                                    // "standing_still" (no velocity yet, or registration.constant_velocity off)
+                                    // "standing_still" (no velocity yet, or registration.constant_velocity off);
+                                    // "+imu" appended when its rotation is the caller's rotation_guess
   std::string failure;          // why, when degenerate
   int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
                                   // still): searched on the next frames
@@ -156,21 +157,26 @@ class Odometry {
   // IMU), T_prev_curr. It replaces the constant-velocity prediction: the registration starts from it, the motion
   // prior is centred on it and degenerate directions are held at it. Throws std::invalid_argument when it is
   // not a finite rigid transform. Ignored on the first frame.
+  // `rotation_guess` (nullable, not with `guess`): the sensor's rotation since the previous frame, R_prev_curr (a
+  // gyro's). It replaces the rotation of the prediction; the translation stays the prediction's (with_rotation).
+  // Also without a velocity yet: the first motion is searched from standing still turned by it.
   // Unorganized points: xyz at data[i * stride + 0..2]; `ring` (nullable) gives the beam of each point.
   // `time` (nullable): when each point was measured, in seconds from `stamp`; with sensor.deskew the sweep is
   // corrected for the motion during it (deskew.hpp) at the predicted velocity, and so is the previous scan when it was
   // corrected at another one. Throws std::invalid_argument on a non-finite time.
   template <typename Scalar>
   FrameResult register_points(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
-                              double stamp, const RigidTransform* guess = nullptr, const double* time = nullptr);
+                              double stamp, const RigidTransform* guess = nullptr,
+                              const Mat3* rotation_guess = nullptr, const double* time = nullptr);
   // Organized cloud (rows x cols, row-major, `stride` elements per point); non-finite points are holes. `time`
   // (nullable): rows x cols, as for register_points.
   template <typename Scalar>
   FrameResult register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
-                                 const RigidTransform* guess = nullptr, const double* time = nullptr);
+                                 const RigidTransform* guess = nullptr, const Mat3* rotation_guess = nullptr,
+                                 const double* time = nullptr);
   // Depth image in metres (row-major rows x cols, 0 / non-finite = no measurement) and intrinsics K.
   FrameResult register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
-                             const RigidTransform* guess = nullptr);
+                             const RigidTransform* guess = nullptr, const Mat3* rotation_guess = nullptr);
   // The valid points of an unorganized cloud after organizing and downsampling, as the pipeline sees them.
   template <typename Scalar>
   std::vector<Vec3> downsampled_points(const Scalar* data, std::size_t count, std::size_t stride,
@@ -178,7 +184,8 @@ class Odometry {
   // Registers an already organized range image (full resolution; downsampling is applied here).
   // `image` organized at `organized_step` (1 = full resolution; the step divides config.downsample).
   FrameResult register_range_image(const RangeImage& image, double stamp, double organize_ms = 0.0,
-                                   int organized_step = 1, const RigidTransform* guess = nullptr);
+                                   int organized_step = 1, const RigidTransform* guess = nullptr,
+                                   const Mat3* rotation_guess = nullptr);
   int organize_step(double stamp, bool guessed = false) const;  // the step the next frame is organized at
 
   void reset(const RigidTransform& pose = RigidTransform::identity());
@@ -200,9 +207,9 @@ class Odometry {
     double first = 0.0, last = 0.0;   // its earliest and latest time
   };
   RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
-  // The velocity a scan at `stamp` is deskewed at: the prediction's (or the guess's) over the stamp interval; standing
-  // still on the first frame and while there is no velocity.
-  SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess) const;
+  // The velocity a scan at `stamp` is deskewed at: the prediction's (the guess's; turned by the rotation guess) over the
+  // stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's turn).
+  SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess) const;
   // Deskews `sweep` at `velocity` and organizes it at `step`.
   RangeImage organize_sweep(const Sweep& sweep, const SweepVelocity& velocity, int step) const;
   // When the previous scan was deskewed at a velocity that moves its points more than sensor.deskew_tolerance from
@@ -210,7 +217,8 @@ class Odometry {
   bool deskew_previous_again(const SweepVelocity& velocity);
   template <typename Scalar>
   FrameResult register_sweep(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
-                             int rows, int cols, double stamp, const RigidTransform* guess, const double* time);
+                             int rows, int cols, double stamp, const RigidTransform* guess,
+                             const Mat3* rotation_guess, const double* time);
   // The passes of paper §6.3 from `start`; `prediction` bounds the accepted estimates.
   PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                                 const RigidTransform& start, bool limit_pairs, FrameStats* st) const;
@@ -218,6 +226,9 @@ class Odometry {
   // (odometry.cpp); the result the candidates picked near it support most.
   PassOutcome first_motion(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                            const RigidTransform* coarse_motion, FrameStats* st) const;
+  // No velocity yet: the coarse scans' registration, then first_motion from it (or from `prediction`).
+  PassOutcome search_first_motion(const ScanFeatures& cur, const ScanFeatures& coarse_cur,
+                                  const RigidTransform& prediction, FrameStats* st) const;
   PassOutcome register_on_window(const ScanFeatures& cur, const RigidTransform& prediction, FrameStats* st) const;
   bool observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
                                 FrameStats* st) const;
