@@ -141,3 +141,20 @@ def test_the_processor_deskews_point_clouds_with_a_time_field(vlp16_sweeps):
         assert proc.process_pointcloud(_cloud(fr.data, 1.7e9 + fr.stamp, spread)) is not None
     assert proc.counters["point_times_ignored"] == len(frames) and proc.counters["frames_deskewed"] == 0
     assert "fields[time]" in proc.last_error
+
+
+def test_deskewing_with_a_gyro_rotation_guess(vlp16_sweeps):
+    """The rotation guess turns the deskew velocity as it turns the prediction: both together on the distorted drive
+    (the true rotation between the stamps as the gyro's) register as well as deskewing alone."""
+    frames = vlp16_sweeps[:20]
+    odom = line_odom_core.Odometry(line_odom_core.load_config("vlp16"))
+    results = []
+    for k, fr in enumerate(frames):
+        turn = None if k == 0 else (np.linalg.inv(frames[k - 1].pose) @ fr.pose)[:3, :3]
+        res = odom.register_points(fr.data.points, fr.stamp, ring=fr.data.ring.astype(np.int32), time=fr.data.time,
+                                   rotation_guess=turn)
+        degenerate.check_finite(res)
+        results.append(res)
+    assert all(res.stats["deskewed"] for res in results[1:])  # the gyro's turn deskews from the first motion on
+    assert all(res.stats["prediction"].endswith("+imu") for res in results[1:])
+    assert _translation_errors(frames, results).mean() < 0.002
