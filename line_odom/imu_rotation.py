@@ -15,6 +15,7 @@ import bisect
 import math
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from line_odom import convert
 
@@ -36,15 +37,6 @@ def gyro_sample(msg) -> tuple[int, str, np.ndarray]:
     if not np.isfinite(rate).all():
         raise ImuError("angular_velocity", f"expected finite rates (rad/s), got {rate.tolist()}")
     return convert.stamp_to_ns(msg.header.stamp), str(msg.header.frame_id).lstrip("/"), rate
-
-
-def rotation_exp(rotvec: np.ndarray) -> np.ndarray:
-    """exp of a rotation vector (Rodrigues), exact near zero."""
-    theta = float(np.linalg.norm(rotvec))
-    K = np.array([[0.0, -rotvec[2], rotvec[1]], [rotvec[2], 0.0, -rotvec[0]], [-rotvec[1], rotvec[0], 0.0]])
-    if theta < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + (math.sin(theta) / theta) * K + ((1.0 - math.cos(theta)) / (theta * theta)) * K @ K
 
 
 class GyroRotation:
@@ -139,7 +131,7 @@ class GyroRotation:
         for a in range(len(knots) - 1):
             dt = (knots[a + 1] - knots[a]) * 1e-9
             if dt > 0.0:
-                R = R @ rotation_exp(0.5 * (rates[a] + rates[a + 1]) * dt)
+                R = R @ Rotation.from_rotvec(0.5 * (rates[a] + rates[a + 1]) * dt).as_matrix()
         return R, None
 
 
