@@ -246,23 +246,27 @@ def print_table(rows: list[Row]) -> None:
 SIM_PRESETS = {"hdl64": "kitti_hdl64", "vlp16": "vlp16", "os128": "ouster_os128"}
 
 
+def simulated_drive(frames: int, sensor: str, distorted: str):
+    """The simulated street (10 m/s, 10 Hz, 1 cm range noise; `distorted` non-empty: sweeps cast while the sensor
+    moves), its ground-truth poses and the sensor's preset; prints the drive's heading line."""
+    from line_odom import sim
+
+    run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor, motion_distortion=bool(distorted))
+    gt = np.array(run.trajectory.poses)
+    length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
+    preset = SIM_PRESETS[sensor]
+    print(f"\nsimulated street drive{distorted}, {sensor} ({preset}): {frames} scans, {length:.0f} m (KITTI devkit "
+          f"metric over 100..800 m segments when >= 100 m)")
+    return run, gt, preset
+
+
 def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64") -> None:
     """Simulated street drive (line_odom.sim: 10 m/s, 10 Hz, 1 cm range noise), KITTI devkit metric. HDL-64 with
     kitti_hdl64 at each of `levels`; VLP-16 / OS-128 with their own presets at the presets' resolution (the issue's
     goals are for the HDL-64 rows)."""
-    try:
-        from line_odom import sim
-    except ImportError as err:
-        print(f"simulator not available ({err}); skipping --sim")
-        return
     from line_odom.metrics import kitti_errors
 
-    run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor)
-    gt = np.array(run.trajectory.poses)
-    length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
-    preset = SIM_PRESETS[sensor]
-    print(f"\nsimulated street drive, {sensor} ({preset}): {frames} scans, {length:.0f} m (KITTI devkit metric over "
-          f"100..800 m segments)")
+    run, gt, preset = simulated_drive(frames, sensor, "")
     print(f"{'res':5} | {'line_odom t_err [%]':>20} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | "
           f"{'KISS-ICP t_err [%]':>19} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | goal", flush=True)
     for level in (levels if sensor == "hdl64" else (None,)):
@@ -307,15 +311,9 @@ def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), s
     """The simulated street drive with sweeps cast while the sensor moves (each column from the pose at its firing
     time, 10 m/s: up to 1 m across a sweep): line_odom given each point's time (sensor.deskew) and without it,
     KISS-ICP with its deskew on (the same times, as fractions of the sweep) and off, on the same points."""
-    from line_odom import sim
     from line_odom.metrics import kitti_errors
 
-    run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor, motion_distortion=True)
-    gt = np.array(run.trajectory.poses)
-    length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
-    preset = SIM_PRESETS[sensor]
-    print(f"\nsimulated street drive with motion-distorted sweeps, {sensor} ({preset}): {frames} scans, {length:.0f} m "
-          f"(KITTI devkit metric over 100..800 m segments when >= 100 m)")
+    run, gt, preset = simulated_drive(frames, sensor, " with motion-distorted sweeps")
     print(f"{'res':5} {'method':24} | {'t_err [%]':>10} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'r [deg]':>8} "
           f"{'ms':>6}", flush=True)
     for level in (levels if sensor == "hdl64" else (None,)):
