@@ -85,6 +85,12 @@ class GyroRotation:
             del self._stamps[:cut], self._rates[:cut]
         return not restarted
 
+    def learn_bias(self, residual: np.ndarray, seconds: float, gain: float) -> None:
+        """Moves the bias a share `gain` towards what a registered rotation says it is: `residual` =
+        rotvec(R_gyro^T R_registered) in IMU axes over an interval of `seconds` (the gyro turned by -residual more
+        than the scans did, so its rates were high by -residual / seconds)."""
+        self.bias = self.bias - gain * np.asarray(residual, dtype=float) / seconds
+
     def coverage_gap(self, t0_ns: int, t1_ns: int) -> str | None:
         """Why the samples do not cover [t0, t1] within max_gap, or None when they do."""
         stamps = self._stamps

@@ -83,6 +83,9 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
                   "it comes from /tf_static instead (base_frame -> the Imu messages' header.frame_id)"),
     NodeParameter("imu.gyro_bias", list, [0.0] * 3, "gyro bias (rad/s, IMU axes) subtracted from every "
                   "angular_velocity", vector=True),
+    NodeParameter("imu.bias_gain", float, 0.05, "share of each scan interval's difference between the gyro's and the "
+                  "registered rotation taken into the gyro bias (a frame registered in full, within 0.5 deg); 0 = the "
+                  "bias stays imu.gyro_bias", 0.0, 1.0),
     NodeParameter("imu.max_gap", float, 0.05, "seconds without a gyro sample a scan interval may contain (also "
                   "between a scan's stamp and the nearest sample past it); a longer gap: the scan uses the "
                   "plain prediction and counts in frames_without_imu", 0.001, 10.0),
@@ -163,6 +166,7 @@ class NodeSettings:
     imu_enabled: bool = False
     imu_base_to_imu: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
     imu_gyro_bias: list = dataclasses.field(default_factory=lambda: [0.0] * 3)
+    imu_bias_gain: float = 0.05
     imu_max_gap: float = 0.05
     imu_window: float = 5.0
 
@@ -469,6 +473,20 @@ class OdometryProcessor:
             return None
         return in_sensor_frame(R_imu, self.T_sensor_base @ self.T_base_imu)
 
+    def _learn_gyro_bias(self, rotation: np.ndarray, delta: np.ndarray, stats: dict, seconds: float) -> None:
+        """imu.bias_gain of the difference between the gyro's turn and a frame's registered one into the bias, when
+        the frame was registered in full (no direction held at the gyro's turn) and the two agree within 0.5 deg."""
+        gain = self.settings.imu_bias_gain
+        in_full = stats.get("registered") and not stats.get("degenerate") and stats.get("held_directions", 0) == 0
+        if gain <= 0.0 or not in_full or stats.get("turn_recovered") or not seconds > 0.0:
+            return
+        residual = Rotation.from_matrix(rotation.T @ delta[:3, :3]).as_rotvec()
+        if np.linalg.norm(residual) > np.radians(0.5):
+            return
+        R_imu_sensor = (self.T_sensor_base @ self.T_base_imu)[:3, :3].T
+        with self._imu_lock:
+            self.gyro.learn_bias(R_imu_sensor @ residual, seconds, gain)
+
     @property
     def has_camera_info(self) -> bool:
         return self._K is not None
@@ -585,6 +603,7 @@ class OdometryProcessor:
                     with self._count_lock:
                         self.counters["frames_guessed" if guess is not None else "frames_unguessed"] += 1
             if rotation is not None:
+                self._learn_gyro_bias(rotation, delta, out.stats, (stamp_ns - last) * 1e-9)
                 with self._count_lock:
                     self.counters["frames_imu"] += 1
         end = time.perf_counter()
@@ -685,6 +704,7 @@ class OdometryProcessor:
         if self.gyro is not None:
             with self._imu_lock:
                 values["imu_samples"] = len(self.gyro)  # kept from imu (imu.window)
+                values["gyro_bias"] = " ".join(f"{v:.4f}" for v in np.degrees(self.gyro.bias))  # deg/s, IMU axes
         if self.static_tf is not None:
             with self._tf_lock:
                 known = len(self.static_tf)

@@ -359,3 +359,43 @@ def test_a_gyro_slightly_off_does_not_cost_the_first_motion_on_the_highway():
     res = odom.register_points(data.xyz(1), float(data.times[1]), rotation_guess=R)
     t_err, _ = degenerate.frame_error(res.delta, truth)
     assert t_err < 0.05 and not res.degenerate and res.stats["prediction"] == "standing_still+imu", (t_err, res.stats)
+
+
+def _biased_gyro_drive(gain: float, frames: int = 80):
+    """The VLP-16 on the simulated street (10 m/s) through the processor, a gyro in the LiDAR's frame with the MEMS
+    bias above that the node is not told about: (learned bias (3,), per-frame rotation errors in deg)."""
+    run = list(sim.make("street", frames=frames, seed=0, sensor="vlp16", noise_std=0.01))
+    poses = np.array([fr.pose for fr in run])
+    stamps = np.array([100.0 + fr.stamp for fr in run])
+    samples, rates = gyro_samples(poses, stamps, rate_hz=200.0, offset=0.0025, noise_std=GYRO_NOISE, bias=GYRO_BIAS,
+                                  seed=2)
+    proc = OdometryProcessor.from_parameters("vlp16", {"imu.enabled": True, "imu.bias_gain": gain,
+                                                       "base_frame": "lidar"})
+    messages = sorted([(round(t * 1e9), 0, w) for t, w in zip(samples, rates)] +
+                      [(round(t * 1e9), 1, k) for k, t in enumerate(stamps)], key=lambda m: (m[0], m[1]))
+    outs = []
+    for stamp_ns, kind, what in messages:
+        if kind == 0:
+            proc.add_imu(_imu_msg(stamp_ns, what, "lidar"))
+            continue
+        scan = run[what].data
+        cloud = np.zeros(len(scan.points), [("x", np.float32), ("y", np.float32), ("z", np.float32),
+                                             ("ring", np.uint16)])
+        cloud["x"], cloud["y"], cloud["z"] = scan.points.T
+        cloud["ring"] = scan.ring
+        outs.append(proc.process_pointcloud(convert.pointcloud2_from_array(
+            cloud, frame_id="lidar", stamp=convert.ns_to_stamp(stamp_ns))))
+    errors = [_angle_deg((np.linalg.inv(np.linalg.inv(poses[k - 1]) @ poses[k]) @
+                          (np.linalg.inv(outs[k - 1].T_odom_base) @ outs[k].T_odom_base))[:3, :3])
+              for k in range(1, frames)]
+    return proc.gyro.bias, np.array(errors)
+
+
+def test_the_gyro_bias_is_learned_from_the_registered_turns():
+    """Each frame registered in full moves the bias imu.bias_gain of the way to what the scans say; measured after 80
+    frames (8 s): |learned - true| 0.021 deg/s of 0.54 deg/s (gain 0.1: 0.022). With the gain 0 it stays 0."""
+    learned, errors = _biased_gyro_drive(0.05)
+    assert np.degrees(np.linalg.norm(learned - np.array(GYRO_BIAS))) < 0.15, np.degrees(learned)
+    assert errors.mean() < 0.05, errors
+    fixed, _ = _biased_gyro_drive(0.0, frames=10)
+    np.testing.assert_array_equal(fixed, np.zeros(3))
