@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Geometry>
 
@@ -47,6 +48,23 @@ void deskew_image(RangeImage* image, const double* time, const SweepVelocity& ve
     const int b = span > 0.0 ? static_cast<int>(std::lround((time_of(cell) - t0) / span * (kBins - 1))) : 0;
     image->points[cell] = table[b].apply(image->points[cell]);
   }
+}
+
+std::vector<double> column_times(const RangeImage& image, const double* time, int step) {
+  const bool by_source = !image.source_index.empty();
+  const int columns = (image.cols + step - 1) / step;
+  std::vector<double> sum(static_cast<std::size_t>(columns), 0.0), count(static_cast<std::size_t>(columns), 0.0);
+  for (int r = 0; r < image.rows; ++r)
+    for (int c = 0; c < image.cols; c += step) {
+      const std::size_t cell = static_cast<std::size_t>(r) * image.cols + c;
+      if (!image.valid[cell]) continue;
+      sum[static_cast<std::size_t>(c / step)] += time[by_source ? static_cast<std::size_t>(image.source_index[cell]) : cell];
+      count[static_cast<std::size_t>(c / step)] += 1.0;
+    }
+  std::vector<double> mean(static_cast<std::size_t>(columns), std::numeric_limits<double>::quiet_NaN());
+  for (std::size_t c = 0; c < mean.size(); ++c)
+    if (count[c] > 0.0) mean[c] = sum[c] / count[c];
+  return mean;
 }
 
 double deskew_difference(const SweepVelocity& a, const SweepVelocity& b, double t0, double t1, double lever) {

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstddef>
+#include <vector>
 
 #include "scan_features.hpp"
 #include "types.hpp"
@@ -23,6 +24,10 @@ struct SweepVelocity {
 // Moves each valid cell's point, measured at time[source] (s from the stamp; source = the cell's source_index, or
 // the cell itself for an organized input), into the stamp's frame. The cells stay where the sweep measured them.
 void deskew_image(RangeImage* image, const double* time, const SweepVelocity& velocity);
+
+// Mean time of every `step`-th column of `image` (the columns of downsample(image, step)), NaN where it has no point;
+// time indexed as for deskew_image.
+std::vector<double> column_times(const RangeImage& image, const double* time, int step);
 
 // The largest distance between where the two velocities put a point `lever` metres from the sensor measured at t0 or
 // t1 (the ends of a sweep): how differently two scans corrected with them are deskewed.

@@ -18,7 +18,7 @@ class FeatureWindow {
   // `measured` (registered in full: nothing held at the prediction), the older scans are dropped: their place
   // relative to the next one would come from the prediction, not from the scans.
   void push(const ScanFeatures& next, const RigidTransform& delta, bool measured);
-  // The newest scan's features fitted anew (deskewed again at another velocity); its place stays.
+  // The newest scan's features moved by a correction of its own (deskewed again at another velocity); its place stays.
   void replace_newest(const ScanFeatures& features) {
     if (!entries_.empty()) entries_.front().features = features;
   }

@@ -123,7 +123,7 @@ struct FrameStats {
   int window_scans = 0;         // previous scans the motion was registered against (registration.window; 0: none)
   bool deskewed = false;        // the points had times and were moved to the stamp at the predicted velocity
   bool previous_deskewed_again = false;  // ... and the previous scan, deskewed at another velocity, was again at this
-                                         // one (its features fitted anew), so that both scans are corrected alike
+                                         // one (its features moved), so that both scans are corrected alike
   StageMilliseconds ms;
 };
 
@@ -196,24 +196,20 @@ class Odometry {
   const ScanFeatures& last_features() const { return prev_features_; }
 
  private:
-  // A scan's points as measured and their times, kept to deskew it again (sensor.deskew).
-  struct Sweep {
-    std::vector<double> xyz;          // count x 3
-    std::vector<std::int32_t> ring;   // empty: none
-    std::vector<double> time;
-    int rows = 0, cols = 0;           // > 0: organized
-    int organized_step = 1, fit_step = 1;
-    SweepVelocity velocity;           // it was deskewed at
-    double first = 0.0, last = 0.0;   // its earliest and latest time
+  // What correcting a scan's features for another velocity needs (sensor.deskew).
+  struct SweepTimes {
+    SweepVelocity velocity;            // it was deskewed at
+    double first = 0.0, last = 0.0;    // its earliest and latest time
+    std::vector<double> column_time;   // mean time of each column of the image its features were fitted on (NaN:
+                                       // none); a spinning sensor measures a column at one time
   };
   RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
   // The velocity a scan at `stamp` is deskewed at: the prediction's (the guess's; turned by the rotation guess) over the
   // stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's turn).
   SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess) const;
-  // Deskews `sweep` at `velocity` and organizes it at `step`.
-  RangeImage organize_sweep(const Sweep& sweep, const SweepVelocity& velocity, int step) const;
-  // When the previous scan was deskewed at a velocity that moves its points more than sensor.deskew_tolerance from
-  // where `velocity` puts them: deskews it at `velocity` and fits its features anew. True when it did.
+  // When the previous scan was deskewed at a velocity that puts its points more than sensor.deskew_tolerance from where
+  // `velocity` puts them: moves its features to where `velocity` would have put them (each line's ends by the
+  // difference at their columns' times, planes at mid-sweep). True when it did.
   bool deskew_previous_again(const SweepVelocity& velocity);
   template <typename Scalar>
   FrameResult register_sweep(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
@@ -289,7 +285,7 @@ class Odometry {
   ScanFeatures prev_features_;
   ScanFeatures prev_coarse_features_;
   FeatureWindow window_;  // the last registration.window scans' features, in the previous scan's frame
-  Sweep prev_sweep_;      // the previous scan as measured, when it had times (sensor.deskew)
+  SweepTimes prev_sweep_;  // the previous scan's, when it had times (sensor.deskew)
   bool have_prev_sweep_ = false;
   // set by register_sweep for the frame register_range_image is about to register
   bool sweep_deskewed_ = false, previous_deskewed_again_ = false;
