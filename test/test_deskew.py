@@ -100,7 +100,8 @@ def test_deskew_off_ignores_the_times(vlp16_sweeps):
 
 @pytest.mark.parametrize("bad, match", [
     (np.zeros(5), r"time: expected one time per point of shape \(10,\)"),
-    (np.full(10, np.nan), "time: expected finite seconds"),
+    (np.full(10, np.nan), "time: expected finite seconds within 10 s"),
+    (np.full(10, 1.7e9), "time: expected finite seconds within 10 s"),
     (np.zeros((10, 2)), "time: expected one time per point"),
 ])
 def test_unusable_times_are_refused_naming_time(bad, match):

@@ -154,6 +154,30 @@ def test_register_points_structured_clouds_with_garbage(seed, special_frac, scal
 
 
 @FUZZ
+@given(seed=st.integers(0, 2**32 - 1), special_frac=st.sampled_from([0.0, 0.01, 0.3]),
+       span=st.sampled_from([0.0, 0.1, 9.9, 1e3]), organized=st.booleans())
+def test_deskew_with_garbage_times(seed, special_frac, span, organized):
+    """Structured clouds with per-point times (sensor.deskew): spread over a sweep or far beyond it, sprinkled with
+    NaN/inf/huge values. Each frame registers with a finite pose or is refused naming `time`."""
+    rng = np.random.default_rng(seed)
+    odom = line_odom_core.Odometry(config())
+    for k in range(4):
+        pts = (scene_points(seed) - k * np.array([0.5, 0.1, 0.0])).astype(np.float64)
+        times = rng.uniform(0.0, 1.0, len(pts)) * span
+        mask = rng.random(len(pts)) < special_frac
+        times[mask] = rng.choice(SPECIAL, size=int(mask.sum()))
+        if organized:
+            res = result_or_value_error(odom.register_organized, pts[:6000].reshape(60, 100, 3), 0.1 * k,
+                                        time=times[:6000].reshape(60, 100), names=("time",))
+        else:
+            res = result_or_value_error(odom.register_points, pts, 0.1 * k, time=times, names=("time",))
+        if res is None:
+            assert special_frac > 0 or span > 10.0
+            continue
+        check_frame(res, 0.1 * k)
+
+
+@FUZZ
 @given(xyz=point_arrays(max_rows=40), stamp=st.floats(-1e9, 1e9))
 def test_register_organized_random_arrays(xyz, stamp):
     odom = line_odom_core.Odometry(config())

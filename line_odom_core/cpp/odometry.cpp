@@ -372,9 +372,10 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   Stopwatch watch;
   check_guess(guess);  // (before the previous scan is touched)
   check_rotation_guess(rotation_guess, guess);
+  constexpr double kLongestSweep = 10.0;  // s: a sweep's times, not clock times (line_odom.convert.sweep_times)
   for (std::size_t i = 0; i < count; ++i)
-    if (!std::isfinite(time[i]))
-      throw std::invalid_argument("time: expected finite seconds from the stamp for every point, got " +
+    if (!(std::abs(time[i]) <= kLongestSweep))
+      throw std::invalid_argument("time: expected finite seconds within 10 s of the stamp for every point, got " +
                                   std::to_string(time[i]) + " at point " + std::to_string(i));
   const int step = rows > 0 ? 1 : organize_step(stamp, guess != nullptr);
   RangeImage image = rows > 0 ? organize_cloud(data, rows, cols, stride, config_.sensor.limits)
