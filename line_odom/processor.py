@@ -276,7 +276,7 @@ class OdometryProcessor:
             None if self.settings.base_to_sensor_from_tf
             else frames.pose_from_params(self.settings.imu_base_to_imu, "imu.base_to_imu"))
         if self.gyro is not None:
-            self.counters.update(frames_imu=0, frames_without_imu=0, imu_rejected=0)
+            self.counters.update(frames_imu=0, frames_without_imu=0, imu_rejected=0, sweeps_without_gyro=0)
         self.static_tf = StaticTransforms() if self.settings.base_to_sensor_from_tf else None
         self._tf_lock = threading.Lock()
         self.mounted_frame: str | None = None  # the sensor frame whose /tf_static mounting is T_base_sensor
@@ -473,6 +473,24 @@ class OdometryProcessor:
             return None
         return in_sensor_frame(R_imu, self.T_sensor_base @ self.T_base_imu)
 
+    def _sweep_rate(self, stamp_ns: int, times: np.ndarray) -> np.ndarray | None:
+        """The sensor's mean angular velocity (rad/s, its axes) over a sweep's times by the gyro (imu.enabled), or
+        None: no gyro, the mounting not known yet, or the samples do not cover the sweep (counted in
+        sweeps_without_gyro; the sweep is then corrected at the prediction's turn)."""
+        if self.gyro is None or self.T_base_imu is None:
+            return None
+        t0, t1 = stamp_ns + round(float(times.min()) * 1e9), stamp_ns + round(float(times.max()) * 1e9)
+        if t1 <= t0:
+            return None
+        with self._imu_lock:
+            R_imu, _ = self.gyro.rotation(t0, t1)
+        if R_imu is None:
+            with self._count_lock:
+                self.counters["sweeps_without_gyro"] += 1
+            return None
+        rate_imu = Rotation.from_matrix(R_imu).as_rotvec() / ((t1 - t0) * 1e-9)
+        return (self.T_sensor_base @ self.T_base_imu)[:3, :3] @ rate_imu
+
     def _learn_gyro_bias(self, rotation: np.ndarray, delta: np.ndarray, stats: dict, seconds: float) -> None:
         """imu.bias_gain of the difference between the gyro's turn and a frame's registered one into the bias, when
         the frame was registered in full (no direction held at the gyro's turn) and the two agree within 0.5 deg."""
@@ -526,6 +544,9 @@ class OdometryProcessor:
             times = None
         # (the time keyword only when there are times: engines without it keep working)
         extra = {} if times is None else {"time": times}
+        rate = None if times is None else self._sweep_rate(convert.stamp_to_ns(msg.header.stamp), times)
+        if rate is not None:
+            extra["sweep_rate"] = rate
         if cloud.organized:
             run = lambda stamp, **guess: self.engine.register_organized(  # noqa: E731
                 cloud.xyz, stamp, **extra, **guess)

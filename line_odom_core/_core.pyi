@@ -150,11 +150,13 @@ class Odometry:
                         ring: npt.NDArray[np.int32] | None = None,
                         guess: npt.NDArray[np.float64] | None = None,
                         rotation_guess: npt.NDArray[np.float64] | None = None,
-                        time: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # xyz (N, k>=3), time (N,)
+                        time: npt.NDArray[np.float64] | None = None,
+                        sweep_rate: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # xyz (N, k>=3), time (N,)
     def register_organized(self, xyz: npt.NDArray[np.floating], stamp: float,
                            guess: npt.NDArray[np.float64] | None = None,
                            rotation_guess: npt.NDArray[np.float64] | None = None,
-                           time: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # (H, W, k>=3), (H, W)
+                           time: npt.NDArray[np.float64] | None = None,
+                           sweep_rate: npt.NDArray[np.float64] | None = None) -> FrameResult: ...  # (H, W, k>=3), (H, W)
     def register_depth(self, depth: npt.NDArray[np.float32], K: npt.NDArray[np.float64],
                        stamp: float, guess: npt.NDArray[np.float64] | None = None,
                        rotation_guess: npt.NDArray[np.float64] | None = None) -> FrameResult: ...

@@ -84,6 +84,20 @@ def _times(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray | None:
     return arr
 
 
+def _sweep_rate(value: Any, times: np.ndarray | None) -> np.ndarray | None:
+    if value is None:
+        return None
+    if times is None:
+        raise ValueError("sweep_rate: expected it with time (the rate turns each point by its time)")
+    try:
+        rate = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        rate = np.array([np.nan])
+    if rate.shape != (3,) or not np.isfinite(rate).all() or np.linalg.norm(rate) >= 100.0:
+        raise ValueError(f"sweep_rate: expected a finite angular velocity (3,) in rad/s (under 100), got {value!r}")
+    return rate
+
+
 def _guess(value: Any) -> np.ndarray | None:
     return None if value is None else _pose("guess", value)
 
@@ -123,7 +137,7 @@ class Odometry:
     # ---- registration ----
     def register_points(self, xyz: np.ndarray, stamp: float, *, ring: np.ndarray | None = None,
                         guess: np.ndarray | None = None, rotation_guess: np.ndarray | None = None,
-                        time: np.ndarray | None = None) -> FrameResult:
+                        time: np.ndarray | None = None, sweep_rate: np.ndarray | None = None) -> FrameResult:
         """Unorganized points (N, 3) in metres (NaN/inf = dropped); `ring` (N,) integer beam index per point, or
         None to organize by elevation with the configured sensor model.
 
@@ -132,7 +146,9 @@ class Odometry:
         the sensor's motion during it at the predicted velocity, into the sensor frame at `stamp`; the previous scan
         is corrected again when it was corrected at a velocity that differs by more than `sensor.deskew_tolerance`,
         so that both scans of a registration are corrected alike (stats["deskewed"],
-        stats["previous_deskewed_again"]).
+        stats["previous_deskewed_again"]). sweep_rate (with time): the sensor's angular velocity during this sweep
+        (3,) rad/s in its axes, a gyro's over the sweep's times: the correction turns at it (this scan's own, kept when
+        the scan is corrected again) instead of at the predicted rotation.
 
         guess (every register_* method): the sensor's motion since the previous frame from another source (wheel
         odometry, an IMU), T_prev_curr (4x4) in the sensor frame, or None. It replaces the constant-velocity
@@ -154,15 +170,18 @@ class Odometry:
             ring_arr = np.ascontiguousarray(ring_arr, dtype=np.int32)
         times = _times(time, (pts.shape[0],), "one time per point")
         return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr, _guess(guess),
-                                                       _rotation_guess(rotation_guess, guess), times))
+                                                       _rotation_guess(rotation_guess, guess), times,
+                                                       _sweep_rate(sweep_rate, times)))
 
     def register_organized(self, xyz: np.ndarray, stamp: float, *, guess: np.ndarray | None = None,
-                           rotation_guess: np.ndarray | None = None, time: np.ndarray | None = None) -> FrameResult:
+                           rotation_guess: np.ndarray | None = None, time: np.ndarray | None = None,
+                           sweep_rate: np.ndarray | None = None) -> FrameResult:
         """Organized points (H, W, 3): rows = rings or pixel rows; NaN/inf/zero points are holes; `time` (H, W)."""
         pts = _float_array("xyz", xyz, 3, 3, "an (H, W, 3) organized point array")
         times = _times(time, pts.shape[:2], "one time per point")
         return self._wrap(self._engine.register_organized(pts, _stamp(stamp), _guess(guess),
-                                                          _rotation_guess(rotation_guess, guess), times))
+                                                          _rotation_guess(rotation_guess, guess), times,
+                                                          _sweep_rate(sweep_rate, times)))
 
     def register_depth(self, depth: np.ndarray, K: np.ndarray, stamp: float, *,
                        guess: np.ndarray | None = None, rotation_guess: np.ndarray | None = None) -> FrameResult:

@@ -134,7 +134,9 @@ def test_the_processor_deskews_point_clouds_with_a_time_field(vlp16_sweeps):
         poses[kind] = out.T_odom_base
         assert proc.counters["frames_deskewed"] == len(frames) - 2
         assert proc.counters["point_times_ignored"] == 0
-    np.testing.assert_allclose(poses["offsets"], poses["clock"], atol=1e-6)
+    # (float64 clock times near 1.7e9 s resolve 0.24 us: a point may fall into the next of the deskew's 1024 time bins,
+    # 0.1 ms = 1 mm at 10 m/s; measured 6e-5 m apart after 6 frames)
+    np.testing.assert_allclose(poses["offsets"], poses["clock"], atol=1e-3)
 
     proc = OdometryProcessor.from_parameters("vlp16")
     for fr in frames:
@@ -159,3 +161,99 @@ def test_deskewing_with_a_gyro_rotation_guess(vlp16_sweeps):
     assert all(res.stats["deskewed"] for res in results[1:])  # the gyro's turn deskews from the first motion on
     assert all(res.stats["prediction"].endswith("+imu") for res in results[1:])
     assert _translation_errors(frames, results).mean() < 0.002
+
+
+FLIP_FRAMES = 40
+
+
+def _turning_sweeps():
+    """test_turns.py's drive (0.5 m a frame, the yaw rate flipping between +-10 deg a frame every 3 frames) seen by a
+    VLP-16 whose sweeps are cast while it turns: each sweep turns by up to 10 deg, the prediction's way or the other."""
+    from line_odom.sim import scenes
+    from scipy.spatial.transform import Rotation
+
+    scene = scenes.street_scene(length_m=300, seed=0)
+    lidar = sim.Lidar.vlp16(noise_std=0.01, seed=0)
+    rate, yaw, poses = np.radians(10.0), 0.0, []
+    for k in range(FLIP_FRAMES + 1):
+        if k % 3 == 0:
+            rate = -rate
+        yaw += rate
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
+        T[:3, 3] = [20.0 + 0.5 * k, -1.75, 1.73]
+        poses.append(T)
+    scans = [lidar.scan(scene, poses[k], stamp=0.1 * k, T_end=poses[k + 1]) for k in range(FLIP_FRAMES)]
+    return poses, scans
+
+
+@pytest.fixture(scope="module")
+def turning_sweeps():
+    return _turning_sweeps()
+
+
+def test_a_gyro_over_each_sweep_deskews_reversing_turns(turning_sweeps):
+    """The gyro's turn between stamps as the rotation guess and its mean rate over each sweep (sweep_rate). Measured:
+    0.026 deg mean rotation error (max 0.08); the same without sweep_rate (the correction turning at the prediction's
+    rate, the wrong way after each reversal) 1.87 deg (max 15.8); as measured, no gyro: 2.44 deg."""
+    from scipy.spatial.transform import Rotation
+
+    poses, scans = turning_sweeps
+    errors = {}
+    for with_rate in (True, False):
+        odom = line_odom_core.Odometry(line_odom_core.load_config("vlp16"))
+        rotation = []
+        for k, scan in enumerate(scans):
+            turn = None if k == 0 else (np.linalg.inv(poses[k - 1]) @ poses[k])[:3, :3]
+            rate = Rotation.from_matrix((np.linalg.inv(poses[k]) @ poses[k + 1])[:3, :3]).as_rotvec() / 0.1
+            res = odom.register_points(scan.points, 0.1 * k, ring=scan.ring.astype(np.int32), time=scan.time,
+                                       rotation_guess=turn, sweep_rate=rate if with_rate else None)
+            degenerate.check_finite(res)
+            if k:
+                rotation.append(degenerate.frame_error(res.delta, np.linalg.inv(poses[k - 1]) @ poses[k])[1])
+        errors[with_rate] = np.array(rotation)
+    assert errors[True].mean() < 0.1 and errors[True].max() < 0.5, errors[True]
+    assert errors[False].mean() > 0.5, errors[False]
+
+
+@pytest.mark.parametrize("rate, time, match", [
+    ([0.0, 0.0, np.nan], np.zeros(10), "sweep_rate: expected a finite angular velocity"),
+    ([0.0, 0.0], np.zeros(10), "sweep_rate: expected a finite angular velocity"),
+    ([0.0, 0.0, 1e3], np.zeros(10), "sweep_rate: expected a finite angular velocity"),
+    ([0.0, 0.0, 0.1], None, "sweep_rate: expected it with time"),
+])
+def test_an_unusable_sweep_rate_is_refused_naming_it(rate, time, match):
+    odom = line_odom_core.Odometry(line_odom_core.load_config("vlp16"))
+    with pytest.raises(ValueError, match=match):
+        odom.register_points(np.random.default_rng(0).normal(size=(10, 3)) * 5, 0.0, time=time, sweep_rate=rate)
+
+
+def test_the_processor_gives_the_gyro_over_each_sweep(turning_sweeps):
+    """Through the processor with a 200 Hz gyro on the reversing turns (noise and a bias it learns): each sweep's rate
+    from the samples over its times. Measured 0.030 deg mean rotation error (max 0.08); without the IMU 2.34 (max 17.6)."""
+    from line_odom.sim.gyro import gyro_samples
+    from test_imu_rotation import _imu_msg
+
+    poses, scans = turning_sweeps
+    stamps = 100.0 + 0.1 * np.arange(FLIP_FRAMES + 1)
+    samples, rates = gyro_samples(np.array(poses), stamps, rate_hz=200.0, offset=0.0025, noise_std=0.002,
+                                  bias=(0.002, -0.003, 0.005), seed=3)
+    results = {}
+    for imu in (True, False):
+        proc = OdometryProcessor.from_parameters("vlp16", {"imu.enabled": imu, "base_frame": "lidar"})
+        # each scan once its sweep is over (the driver sends it then), the gyro's samples as they come
+        events = sorted([(round(t * 1e9), 0, w) for t, w in zip(samples, rates)] +
+                        [(round((stamps[k] + 0.1) * 1e9), 1, k) for k in range(FLIP_FRAMES)], key=lambda e: e[:2])
+        outs = []
+        for stamp_ns, kind, what in events:
+            if kind == 0:
+                if imu:
+                    proc.add_imu(_imu_msg(stamp_ns, what, "lidar"))
+                continue
+            outs.append(proc.process_pointcloud(_cloud(scans[what], stamps[what], scans[what].time.astype(np.float64))))
+        errors = [degenerate.frame_error(np.linalg.inv(outs[k - 1].T_odom_base) @ outs[k].T_odom_base,
+                                         np.linalg.inv(poses[k - 1]) @ poses[k])[1] for k in range(1, FLIP_FRAMES)]
+        results[imu] = (np.mean(errors), proc.counters)
+    assert results[True][0] < 0.2, results[True]
+    assert results[True][1]["sweeps_without_gyro"] == 0 and results[True][1]["frames_deskewed"] == FLIP_FRAMES
+    assert results[False][0] > 0.5, results[False][0]

@@ -951,7 +951,8 @@ line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& 
                                        const std::optional<py::array_t<std::int32_t>>& ring,
                                        const std::optional<line_odom::Mat4>& guess,
                                        const std::optional<line_odom::Mat3>& rotation_guess,
-                                       const std::optional<TimeArray>& time) {
+                                       const std::optional<TimeArray>& time,
+                                       const std::optional<line_odom::Vec3>& sweep_rate) {
   const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
   const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
   const std::int32_t* ring_ptr = ring_pointer(ring, n);
@@ -959,14 +960,15 @@ line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& 
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
   const line_odom::Mat3* rotation_ptr = rotation_guess ? &*rotation_guess : nullptr;
+  const line_odom::Vec3* rate_ptr = sweep_rate ? &*sweep_rate : nullptr;
   const bool is_float = py::isinstance<py::array_t<float>>(xyz);
   const void* data = xyz.data();
   py::gil_scoped_release release;
   try {
     return is_float ? o.register_points(static_cast<const float*>(data), n, stride, ring_ptr, stamp, guess_ptr,
-                                        rotation_ptr, time_ptr)
+                                        rotation_ptr, time_ptr, rate_ptr)
                     : o.register_points(static_cast<const double*>(data), n, stride, ring_ptr, stamp, guess_ptr,
-                                        rotation_ptr, time_ptr);
+                                        rotation_ptr, time_ptr, rate_ptr);
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
@@ -975,7 +977,8 @@ line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& 
 line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::array& xyz, double stamp,
                                           const std::optional<line_odom::Mat4>& guess,
                                           const std::optional<line_odom::Mat3>& rotation_guess,
-                                          const std::optional<TimeArray>& time) {
+                                          const std::optional<TimeArray>& time,
+                                          const std::optional<line_odom::Vec3>& sweep_rate) {
   const std::size_t stride = point_stride(xyz, 3, "an (H, W, 3) organized point array");
   const int rows = static_cast<int>(xyz.shape(0)), cols = static_cast<int>(xyz.shape(1));
   const double* time_ptr =
@@ -983,14 +986,15 @@ line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::arra
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
   const line_odom::Mat3* rotation_ptr = rotation_guess ? &*rotation_guess : nullptr;
+  const line_odom::Vec3* rate_ptr = sweep_rate ? &*sweep_rate : nullptr;
   const bool is_float = py::isinstance<py::array_t<float>>(xyz);
   const void* data = xyz.data();
   py::gil_scoped_release release;
   try {
     return is_float ? o.register_organized(static_cast<const float*>(data), rows, cols, stride, stamp, guess_ptr,
-                                           rotation_ptr, time_ptr)
+                                           rotation_ptr, time_ptr, rate_ptr)
                     : o.register_organized(static_cast<const double*>(data), rows, cols, stride, stamp, guess_ptr,
-                                           rotation_ptr, time_ptr);
+                                           rotation_ptr, time_ptr, rate_ptr);
   } catch (const std::invalid_argument& e) {
     throw py::value_error(e.what());
   }
@@ -1129,9 +1133,11 @@ PYBIND11_MODULE(_core, m) {
     py::class_<Odometry>(m, "Odometry", "Stateful frame-to-frame odometry; settings: dict of dotted names.")
         .def(py::init(&ob::make_odometry), py::arg("settings"))
         .def("register_points", &ob::register_points, py::arg("xyz"), py::arg("stamp"), py::arg("ring") = py::none(),
-             py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none(), py::arg("time") = py::none())
+             py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none(), py::arg("time") = py::none(),
+             py::arg("sweep_rate") = py::none())
         .def("register_organized", &ob::register_organized, py::arg("xyz"), py::arg("stamp"),
-             py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none(), py::arg("time") = py::none())
+             py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none(), py::arg("time") = py::none(),
+             py::arg("sweep_rate") = py::none())
         .def("register_depth", &ob::register_depth, py::arg("depth"), py::arg("K"), py::arg("stamp"),
              py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none())
         .def("downsampled_points", &ob::downsampled_points, py::arg("xyz"), py::arg("ring") = py::none())

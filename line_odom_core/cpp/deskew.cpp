@@ -16,13 +16,19 @@ constexpr int kBins = 1024;
 
 }  // namespace
 
-RigidTransform SweepVelocity::at(double tau) const {
-  if (!moving() || tau == 0.0) return RigidTransform::identity();
-  const double f = tau / interval;
+SweepVelocity SweepVelocity::over(const RigidTransform& motion, double interval) {
   const Eigen::AngleAxisd turn(motion.R);
+  SweepVelocity v;
+  v.rate = turn.axis() * (turn.angle() / interval);
+  v.speed = motion.t / interval;
+  return v;
+}
+
+RigidTransform SweepVelocity::at(double tau) const {
   RigidTransform T;
-  T.R = Eigen::AngleAxisd(f * turn.angle(), turn.axis()).toRotationMatrix();
-  T.t = f * motion.t;
+  const double angle = rate.norm() * tau;
+  if (angle != 0.0) T.R = Eigen::AngleAxisd(angle, rate.normalized()).toRotationMatrix();
+  T.t = speed * tau;
   return T;
 }
 

@@ -1,7 +1,6 @@
 // Motion compensation of a LiDAR sweep: the points a spinning sensor measured while it moved, each moved into the
 // sensor frame at the scan's stamp. A point measured tau seconds after the stamp (negative: before it) is moved by
-// the sensor's motion over tau at a constant velocity: `motion` over `interval` seconds, its rotation angle and
-// translation scaled by tau / interval (SO(3) x R^3, as scale_motion).
+// the sensor's motion over tau at a constant velocity: turned by exp(rate tau), shifted by speed tau.
 #pragma once
 
 #include <cstddef>
@@ -13,10 +12,13 @@
 namespace line_odom {
 
 struct SweepVelocity {
-  RigidTransform motion;  // T_stamp_(stamp + interval)
-  double interval = 0.0;  // s; 0: standing still (nothing moves)
+  Vec3 rate = Vec3::Zero();    // rad/s, sensor axes
+  Vec3 speed = Vec3::Zero();   // m/s, sensor axes
+  bool measured_rate = false;  // the rate is this sweep's own (a gyro's over it), not the prediction's
 
-  bool moving() const { return interval > 0.0; }
+  // The constant velocity that moves by `motion` (T_stamp_(stamp + interval)) in `interval` seconds.
+  static SweepVelocity over(const RigidTransform& motion, double interval);
+  bool moving() const { return !rate.isZero() || !speed.isZero(); }
   // T_stamp_(stamp + tau)
   RigidTransform at(double tau) const;
 };

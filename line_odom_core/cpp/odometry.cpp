@@ -334,9 +334,9 @@ SensorModel make_sensor_model(const SensorOptions& options) {
 template <typename Scalar>
 FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std::size_t stride,
                                       const std::int32_t* ring, double stamp, const RigidTransform* guess,
-                                      const Mat3* rotation_guess, const double* time) {
+                                      const Mat3* rotation_guess, const double* time, const Vec3* sweep_rate) {
   if (time != nullptr && config_.sensor.deskew)
-    return register_sweep(data, count, stride, ring, 0, 0, stamp, guess, rotation_guess, time);
+    return register_sweep(data, count, stride, ring, 0, 0, stamp, guess, rotation_guess, time, sweep_rate);
   check_rotation_guess(rotation_guess, guess);
   have_prev_sweep_ = false;
   Stopwatch watch;
@@ -349,11 +349,11 @@ FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std
 template <typename Scalar>
 FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
                                          const RigidTransform* guess, const Mat3* rotation_guess,
-                                         const double* time) {
+                                         const double* time, const Vec3* sweep_rate) {
   if (time != nullptr && config_.sensor.deskew) {
     if (rows < 0 || cols < 0) throw std::invalid_argument("xyz: expected a non-negative number of rows and columns");
     return register_sweep(data, static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), stride, nullptr,
-                          rows, cols, stamp, guess, rotation_guess, time);
+                          rows, cols, stamp, guess, rotation_guess, time, sweep_rate);
   }
   check_rotation_guess(rotation_guess, guess);
   have_prev_sweep_ = false;
@@ -368,10 +368,14 @@ FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols,
 template <typename Scalar>
 FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std::size_t stride,
                                      const std::int32_t* ring, int rows, int cols, double stamp,
-                                     const RigidTransform* guess, const Mat3* rotation_guess, const double* time) {
+                                     const RigidTransform* guess, const Mat3* rotation_guess, const double* time,
+                                     const Vec3* sweep_rate) {
   Stopwatch watch;
   check_guess(guess);  // (before the previous scan is touched)
   check_rotation_guess(rotation_guess, guess);
+  if (sweep_rate != nullptr && !(sweep_rate->allFinite() && sweep_rate->norm() < 100.0))
+    throw std::invalid_argument("sweep_rate: expected the sensor's finite angular velocity during the sweep (rad/s, "
+                                "under 100)");
   constexpr double kLongestSweep = 10.0;  // s: a sweep's times, not clock times (line_odom.convert.sweep_times)
   for (std::size_t i = 0; i < count; ++i)
     if (!(std::abs(time[i]) <= kLongestSweep))
@@ -382,7 +386,7 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
                               : organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits,
                                                             step);
   SweepTimes sweep;
-  sweep.velocity = sweep_velocity(stamp, guess, rotation_guess);
+  sweep.velocity = sweep_velocity(stamp, guess, rotation_guess, sweep_rate);
   if (count > 0) {
     const auto [first, last] = std::minmax_element(time, time + count);
     sweep.first = *first, sweep.last = *last;
@@ -402,16 +406,20 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   return result;
 }
 
-SweepVelocity Odometry::sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess) const {
+SweepVelocity Odometry::sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess,
+                                      const Vec3* sweep_rate) const {
   const double dt = stamp - prev_stamp_;
-  if (frames_ == 0 || !std::isfinite(dt) || dt <= 0.0) return {};
-  if (guess != nullptr) return {*guess, dt};
-  const bool moving = have_velocity_ && dt <= config_.registration.max_prediction_gap;
-  Vec6 persistence;
-  const RigidTransform own = moving ? predict(stamp, &persistence) : RigidTransform::identity();
-  if (rotation_guess != nullptr) return {with_rotation(own, *rotation_guess), dt};
-  if (!moving) return {};
-  return {own, dt};
+  SweepVelocity velocity;
+  if (frames_ > 0 && std::isfinite(dt) && dt > 0.0) {
+    const bool moving = have_velocity_ && dt <= config_.registration.max_prediction_gap;
+    Vec6 persistence;
+    RigidTransform motion = moving ? predict(stamp, &persistence) : RigidTransform::identity();
+    if (guess != nullptr) motion = *guess;
+    else if (rotation_guess != nullptr) motion = with_rotation(motion, *rotation_guess);
+    if (moving || guess != nullptr || rotation_guess != nullptr) velocity = SweepVelocity::over(motion, dt);
+  }
+  if (sweep_rate != nullptr) velocity.rate = *sweep_rate, velocity.measured_rate = true;
+  return velocity;
 }
 
 // Both scans of a registration must be deskewed alike: deskewed at different velocities, the pair would differ by the
@@ -422,10 +430,12 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
   // A point this far away stands for the scan's lines (most lie within 20 m).
   constexpr double kLever = 20.0;
   const SweepTimes& prev = prev_sweep_;
-  if (deskew_difference(prev.velocity, velocity, prev.first, prev.last, kLever) <= config_.sensor.deskew_tolerance)
+  SweepVelocity target = velocity;  // a turn measured over the previous sweep itself stays its own
+  if (prev.velocity.measured_rate) target.rate = prev.velocity.rate, target.measured_rate = true;
+  if (deskew_difference(prev.velocity, target, prev.first, prev.last, kLever) <= config_.sensor.deskew_tolerance)
     return false;
   const double mid = 0.5 * (prev.first + prev.last);
-  const auto correction = [&](double tau) { return velocity.at(tau) * prev.velocity.at(tau).inverse(); };
+  const auto correction = [&](double tau) { return target.at(tau) * prev.velocity.at(tau).inverse(); };
   const auto time_at = [&](int column) {
     const bool known = column >= 0 && column < static_cast<int>(prev.column_time.size()) &&
                        std::isfinite(prev.column_time[static_cast<std::size_t>(column)]);
@@ -449,7 +459,7 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
     plane.centroid = C.apply(plane.centroid);
   }
   if (config_.registration.window > 1) window_.replace_newest(prev_features_);
-  prev_sweep_.velocity = velocity;
+  prev_sweep_.velocity = target;
   return true;
 }
 
@@ -474,13 +484,13 @@ std::vector<Vec3> Odometry::downsampled_points(const Scalar* data, std::size_t c
 }
 
 template FrameResult Odometry::register_points(const float*, std::size_t, std::size_t, const std::int32_t*, double,
-                                               const RigidTransform*, const Mat3*, const double*);
+                                               const RigidTransform*, const Mat3*, const double*, const Vec3*);
 template FrameResult Odometry::register_points(const double*, std::size_t, std::size_t, const std::int32_t*, double,
-                                               const RigidTransform*, const Mat3*, const double*);
+                                               const RigidTransform*, const Mat3*, const double*, const Vec3*);
 template FrameResult Odometry::register_organized(const float*, int, int, std::size_t, double, const RigidTransform*,
-                                                  const Mat3*, const double*);
+                                                  const Mat3*, const double*, const Vec3*);
 template FrameResult Odometry::register_organized(const double*, int, int, std::size_t, double, const RigidTransform*,
-                                                  const Mat3*, const double*);
+                                                  const Mat3*, const double*, const Vec3*);
 template std::vector<Vec3> Odometry::downsampled_points(const float*, std::size_t, std::size_t,
                                                         const std::int32_t*) const;
 template std::vector<Vec3> Odometry::downsampled_points(const double*, std::size_t, std::size_t,

@@ -163,17 +163,19 @@ class Odometry {
   // Unorganized points: xyz at data[i * stride + 0..2]; `ring` (nullable) gives the beam of each point.
   // `time` (nullable): when each point was measured, in seconds from `stamp`; with sensor.deskew the sweep is
   // corrected for the motion during it (deskew.hpp) at the predicted velocity, and so is the previous scan when it was
-  // corrected at another one. Throws std::invalid_argument on a non-finite time.
+  // corrected at another one. Throws std::invalid_argument on a non-finite time. `sweep_rate` (nullable, with `time`):
+  // the sensor's angular velocity during this sweep (rad/s, a gyro's): the turn of the correction, this scan's own.
   template <typename Scalar>
   FrameResult register_points(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
                               double stamp, const RigidTransform* guess = nullptr,
-                              const Mat3* rotation_guess = nullptr, const double* time = nullptr);
+                              const Mat3* rotation_guess = nullptr, const double* time = nullptr,
+                              const Vec3* sweep_rate = nullptr);
   // Organized cloud (rows x cols, row-major, `stride` elements per point); non-finite points are holes. `time`
   // (nullable): rows x cols, as for register_points.
   template <typename Scalar>
   FrameResult register_organized(const Scalar* data, int rows, int cols, std::size_t stride, double stamp,
                                  const RigidTransform* guess = nullptr, const Mat3* rotation_guess = nullptr,
-                                 const double* time = nullptr);
+                                 const double* time = nullptr, const Vec3* sweep_rate = nullptr);
   // Depth image in metres (row-major rows x cols, 0 / non-finite = no measurement) and intrinsics K.
   FrameResult register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
                              const RigidTransform* guess = nullptr, const Mat3* rotation_guess = nullptr);
@@ -205,8 +207,10 @@ class Odometry {
   };
   RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
   // The velocity a scan at `stamp` is deskewed at: the prediction's (the guess's; turned by the rotation guess) over the
-  // stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's turn).
-  SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess) const;
+  // stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's turn);
+  // turning at `sweep_rate` when given.
+  SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess,
+                               const Vec3* sweep_rate) const;
   // When the previous scan was deskewed at a velocity that puts its points more than sensor.deskew_tolerance from where
   // `velocity` puts them: moves its features to where `velocity` would have put them (each line's ends by the
   // difference at their columns' times, planes at mid-sweep). True when it did.
@@ -214,7 +218,7 @@ class Odometry {
   template <typename Scalar>
   FrameResult register_sweep(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
                              int rows, int cols, double stamp, const RigidTransform* guess,
-                             const Mat3* rotation_guess, const double* time);
+                             const Mat3* rotation_guess, const double* time, const Vec3* sweep_rate);
   // The passes of paper §6.3 from `start`; `prediction` bounds the accepted estimates.
   PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                                 const RigidTransform& start, bool limit_pairs, FrameStats* st) const;
