@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/soak.py                      # 5,000 frames at 10 Hz (~8.5 min)
     .venv/bin/python bench/soak.py --frames 300         # a quick look
+    .venv/bin/python bench/soak.py --distortion --imu   # motion-distorted sweeps with point times, and a gyro
 
 The node runs in its own process (``python -m line_odom.node``, what ``ros2 run line_odom node`` starts) with the
 shipped vlp16 preset as it is (``--set`` overrides a parameter); this process renders a
@@ -10,6 +11,12 @@ PointCloud2 (best effort, the shipped Fast DDS large-message profile) on a fixed
 ``odom`` and ``/diagnostics``. It prints frames in / out / dropped, end-to-end latency percentiles (publish to
 Odometry received), the node's RSS at start and end (and its trend), NaN poses, crashes and the frame-to-frame
 error against the simulator's ground truth. Not a test: a table to paste into docs/RESULTS.md.
+
+``--distortion`` casts each sweep while the sensor moves and publishes each point's ``time`` (float32 s after the
+stamp) for the node to deskew. ``--imu`` runs the node with ``imu.enabled`` and publishes a gyro synthesized from the
+ground truth on ``imu`` (200 Hz, 0.1 deg/s white noise, a bias the node is not told, in the LiDAR's frame), its samples
+interleaved with the scans in stamp order at real time: a scan is sent once its sweep is complete (one period after
+its stamp), after the gyro samples up to then. The summary adds the deskew and gyro counters and the learned bias.
 """
 from __future__ import annotations
 
@@ -62,6 +69,13 @@ def main() -> int:
     ap.add_argument("--columns", type=int, default=600, help="VLP-16 azimuth steps per revolution")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--domain", type=int, default=90 + os.getpid() % 10, help="ROS_DOMAIN_ID")
+    ap.add_argument("--distortion", action="store_true",
+                    help="sweeps cast while the sensor moves, with each point's time field (deskewing)")
+    ap.add_argument("--imu", action="store_true", help="a synthesized gyro on 'imu' (imu.enabled: true)")
+    ap.add_argument("--imu-rate", type=float, default=200.0, help="gyro sample rate (Hz)")
+    ap.add_argument("--imu-noise", type=float, default=0.1, help="gyro white noise per sample (deg/s)")
+    ap.add_argument("--imu-bias", type=float, nargs=3, default=(0.1, -0.2, 0.5), metavar=("X", "Y", "Z"),
+                    help="gyro bias the node is not told (deg/s, LiDAR axes)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="extra node/engine parameter (repeatable), e.g. --set registration.passes=2")
     args = ap.parse_args()
@@ -79,11 +93,14 @@ def main() -> int:
 
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import PointCloud2
+    from sensor_msgs.msg import Imu, PointCloud2
 
     from line_odom import convert, sim
+    from line_odom.sim.gyro import gyro_samples
 
     params = dict(NODE_SETTINGS)
+    if args.imu:
+        params["imu.enabled"] = True
     for item in args.set:
         key, _, value = item.partition("=")
         params[key] = type(params[key])(value) if key in params and not isinstance(params[key], bool) else (
@@ -91,9 +108,15 @@ def main() -> int:
             if value.lstrip("-").isdigit() else value)
 
     run = sim.make("street", frames=args.frames, seed=args.seed, rate_hz=args.rate,
-                   sensor=sim.Lidar.vlp16(columns=args.columns, seed=args.seed))
+                   sensor=sim.Lidar.vlp16(columns=args.columns, seed=args.seed, rate_hz=args.rate),
+                   motion_distortion=args.distortion)
     truth = run.trajectory.poses
     stamp0 = 100.0  # stamps in seconds: stamp0 + k / rate
+    gyro_stamps, gyro_rates = np.empty(0), np.empty((0, 3))
+    if args.imu:
+        gyro_stamps, gyro_rates = gyro_samples(truth, stamp0 + run.trajectory.stamps, rate_hz=args.imu_rate,
+                                               offset=0.5 / args.imu_rate, noise_std=np.radians(args.imu_noise),
+                                               bias=np.radians(args.imu_bias), seed=args.seed)
 
     node = NodeProcess(dict(os.environ), params=params)
     ctx = Context()
@@ -130,6 +153,8 @@ def main() -> int:
     part.create_subscription(DiagnosticArray, "/diagnostics", on_diag, reliable)
     pub = part.create_publisher(PointCloud2, f"{node.namespace}/points",
                                 QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
+    imu_pub = part.create_publisher(Imu, f"{node.namespace}/imu",
+                                    QoSProfile(depth=400, reliability=ReliabilityPolicy.BEST_EFFORT)) if args.imu else None
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(part)
     spinning = True
@@ -151,16 +176,21 @@ def main() -> int:
     def render():
         for i, frame in enumerate(run):
             msg = convert.pointcloud2_from_xyz(frame.data.points, ring=frame.data.ring, frame_id="velodyne",
+                                               time=frame.data.time if args.distortion else None,
                                                stamp=stamp0 + i / args.rate)
             frames_q.put((i, msg))
         frames_q.put(None)
 
     threading.Thread(target=render, daemon=True).start()
 
-    print(f"soak: {args.frames} frames at {args.rate:g} Hz, VLP-16 x {args.columns} columns, node {node.namespace} "
-          f"(pid {node.proc.pid}), params {params}", flush=True)
+    inputs = (", motion-distorted sweeps with point times" if args.distortion else "") + (
+        f", gyro {args.imu_rate:g} Hz noise {args.imu_noise:g} deg/s bias {tuple(args.imu_bias)} deg/s" if args.imu
+        else "")
+    print(f"soak: {args.frames} frames at {args.rate:g} Hz, VLP-16 x {args.columns} columns{inputs}, node "
+          f"{node.namespace} (pid {node.proc.pid}), params {params}", flush=True)
     deadline = time.monotonic() + 90
-    while pub.get_subscription_count() == 0 or part.count_publishers(f"{node.namespace}/odom") == 0:
+    while (pub.get_subscription_count() == 0 or part.count_publishers(f"{node.namespace}/odom") == 0
+           or (imu_pub is not None and imu_pub.get_subscription_count() == 0)):
         if node.proc.poll() is not None or time.monotonic() > deadline:
             print(node.output())
             raise SystemExit("node did not come up")
@@ -176,11 +206,35 @@ def main() -> int:
     t_next = time.monotonic()
     late_publishes = 0
     crashed = False
+    imu_sent = 0
+    late_imu = 0
+
+    def send_imu_until(stamp: float, scan_due: float) -> None:
+        """The gyro samples stamped up to `stamp`, each at its own time: scan_due (when the scan stamped one period
+        before `stamp` goes out) less the sample's lead on `stamp`."""
+        nonlocal imu_sent, late_imu
+        while imu_sent < len(gyro_stamps) and gyro_stamps[imu_sent] <= stamp + 1e-9:
+            due = scan_due - (stamp - gyro_stamps[imu_sent])
+            now = time.monotonic()
+            if now < due:
+                time.sleep(due - now)
+            elif now - due > period:
+                late_imu += 1
+            sample = Imu()
+            sample.header.stamp = convert.sec_to_stamp(float(gyro_stamps[imu_sent]))
+            sample.header.frame_id = "velodyne"
+            (sample.angular_velocity.x, sample.angular_velocity.y,
+             sample.angular_velocity.z) = (float(v) for v in gyro_rates[imu_sent])
+            sample.orientation_covariance[0] = -1.0  # a gyro: no orientation
+            imu_pub.publish(sample)
+            imu_sent += 1
     while True:
         item = frames_q.get()
         if item is None:
             break
         i, msg = item
+        if imu_pub is not None:  # the sweep of scan i ends one period after its stamp: the gyro has covered it
+            send_imu_until(stamp0 + (i + 1) / args.rate, t_next)
         now = time.monotonic()
         if now < t_next:
             time.sleep(t_next - now)
@@ -254,6 +308,21 @@ def main() -> int:
     print(f"  NaN poses                    {nan_poses}")
     print(f"  crashes                      {int(crashed)}")
     print(f"  diagnostics levels seen      {levels}  (0 OK, 1 WARN, 2 ERROR)")
+    if args.distortion:
+        print(f"  node frames_deskewed         {final_diag.get('frames_deskewed', '?')} (expected {n_in - 1 if args.imu else n_in - 2}: "
+              f"the first scan{'' if args.imu else ' and the second (no velocity yet)'} as measured)")
+        print(f"  node point_times_ignored     {final_diag.get('point_times_ignored', '?')}")
+    if args.imu:
+        print(f"  gyro samples sent / late     {imu_sent} / {late_imu}")
+        print(f"  node frames_imu              {final_diag.get('frames_imu', '?')} (every scan after the first)")
+        print(f"  node frames_without_imu      {final_diag.get('frames_without_imu', '?')}")
+        print(f"  node imu_rejected            {final_diag.get('imu_rejected', '?')}")
+        print(f"  node imu_samples (kept)      {final_diag.get('imu_samples', '?')}")
+        print(f"  node gyro_bias deg/s         {final_diag.get('gyro_bias', '?')}  (true "
+              f"{' '.join(f'{v:.4f}' for v in args.imu_bias)}, not told)")
+        print(f"  node prediction (last)       {final_diag.get('prediction', '?')}")
+    if final_diag.get("last_error"):
+        print(f"  node last_error              {final_diag['last_error']}")
     if t_err:
         print(f"  frame-to-frame error         mean {np.mean(t_err):.4f} m / {np.mean(r_err):.3f} deg, "
               f"max {np.max(t_err):.3f} m / {np.max(r_err):.2f} deg")
