@@ -682,3 +682,30 @@ def test_gyro_rotation_from_an_imu_topic(run_node):
     values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == len(drive), "frames_processed")
     assert (int(values["frames_imu"]), int(values["frames_without_imu"])) == (len(drive) - 1, 0), values
     assert values["prediction"] == "constant_velocity+imu"
+
+
+def test_motion_distorted_sweeps_with_point_times_are_deskewed(run_node):
+    # The simulated street (VLP-16, 10 m/s, 1 cm noise) with sweeps cast while the sensor moves, each point's time
+    # (float32 s after the stamp, the Velodyne driver's `time`) in the cloud. The vlp16 preset deskews (sensor.deskew):
+    # every frame from the third on is corrected, no point times are ignored, and the frame-to-frame error from the
+    # third frame on is that of deskewing (measured in-process on these 10 frames: 0.0010 m mean, 0.0035 m with the
+    # times left out); bound 0.002 m.
+    from line_odom import sim
+
+    sweeps = list(sim.make("street", frames=10, seed=0, sensor="vlp16", noise_std=0.01, motion_distortion=True))
+    node, h = run_node({"preset": "vlp16"})
+    pub = h.publisher(PointCloud2, node.topic("points"))
+    h.wait_matched(pub, node, STARTUP_S)
+    odoms = []
+    for sweep in sweeps:
+        stamp = 1000.0 + sweep.stamp
+        cloud = convert.pointcloud2_from_xyz(sweep.data.points, ring=sweep.data.ring, time=sweep.data.time,
+                                             frame_id="velodyne", stamp=convert.sec_to_stamp(stamp))
+        odoms.append(publish_and_wait(h, node, pub, cloud, stamp))
+    estimated = np.array([pose_matrix(o.pose.pose) for o in odoms])
+    truth = np.array([np.linalg.inv(sweeps[0].pose) @ sweep.pose for sweep in sweeps])
+    t_err, r_err = relative_pose_errors(estimated, truth)
+    assert t_err[2:].mean() < 0.002 and r_err.max() < 0.1, (t_err, r_err)
+    values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == len(sweeps), "frames_processed")
+    assert (int(values["frames_deskewed"]), int(values["point_times_ignored"])) == (len(sweeps) - 2, 0), values
+    assert values["last_error"] == "", values
