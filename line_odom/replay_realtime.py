@@ -220,16 +220,21 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     stop_spinning = spin_in_background(executor)
     published: dict[int, float] = {}
     try:
+        inputs = [(data_pub, inp.topic), (guess_pub, guess_topic), (imu_pub, imu_topic)]
+
+        def not_connected() -> list[str]:
+            missing = [f"no subscription to {topic}" for pub, topic in inputs
+                       if pub is not None and pub.get_subscription_count() < 1]
+            return missing + ([f"no publisher of {NODE_OUTPUT_TOPIC}"] if sub.get_publisher_count() < 1 else [])
+
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while (data_pub.get_subscription_count() < 1 or sub.get_publisher_count() < 1
-               or (guess_pub is not None and guess_pub.get_subscription_count() < 1)
-               or (imu_pub is not None and imu_pub.get_subscription_count() < 1)):
+        while missing := not_connected():
             if proc.poll() is not None:
                 raise RuntimeError(f"the node exited with code {proc.returncode} before subscribing: "
                                    f"{_tail(log_file)}")
             if time.monotonic() > deadline:
-                raise RuntimeError(f"the node did not subscribe to {inp.topic} within {STARTUP_TIMEOUT_S:.0f} s: "
-                                   f"{_tail(log_file)}")
+                raise RuntimeError(f"the node is not connected within {STARTUP_TIMEOUT_S:.0f} s "
+                                   f"({', '.join(missing)}): {_tail(log_file)}")
             time.sleep(0.05)
         time.sleep(0.5)  # let discovery settle in both directions
         wall0 = bag0 = None

@@ -331,6 +331,21 @@ def test_realtime_replay_publishes_the_imu_topic(tmp_path, ros_env):
     assert m["frames"] + m["frames_dropped"] == n and m["frames"] >= n - 2, m
     assert m["rpe_rot_max_deg"] < 0.3, m
 
+def test_realtime_replay_names_the_input_the_node_does_not_subscribe_to(tmp_path, ros_env, monkeypatch):
+    """A node that never subscribes to the gyro's topic (imu.enabled false behind the replay's back) stops the
+    realtime replay with an error naming that topic (it named the clouds' topic, whatever was missing)."""
+    from line_odom import replay_realtime
+    from line_odom.replay import select_input
+
+    bag = tmp_path / "bag"
+    _gyro_bag(bag, frames=2, imu_topic="/imu/data")
+    monkeypatch.setattr(replay_realtime, "STARTUP_TIMEOUT_S", 5.0)
+    with bags.BagReader(bag) as reader:
+        with pytest.raises(RuntimeError, match=r"not connected within 5 s \(.*no subscription to /imu/data"):
+            replay_realtime.run_realtime(reader, select_input(reader), overrides={"downsample": 6,
+                                                                                  "imu.enabled": False},
+                                         imu_topic="/imu/data")
+
 def test_realtime_replay_latches_the_bags_tf_static(tmp_path, ros_env, kitti_bags):
     """--realtime with base_to_sensor_from_tf: the bag's /tf_static is published latched for the node, which takes
     the camera's mounting from it; the sensor poses written are those of the in-process replay (bound: the
