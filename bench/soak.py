@@ -153,8 +153,9 @@ def main() -> int:
     part.create_subscription(DiagnosticArray, "/diagnostics", on_diag, reliable)
     pub = part.create_publisher(PointCloud2, f"{node.namespace}/points",
                                 QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
-    imu_pub = part.create_publisher(Imu, f"{node.namespace}/imu",
-                                    QoSProfile(depth=400, reliability=ReliabilityPolicy.BEST_EFFORT)) if args.imu else None
+    imu_pub = (part.create_publisher(Imu, f"{node.namespace}/imu",
+                                     QoSProfile(depth=400, reliability=ReliabilityPolicy.BEST_EFFORT))
+               if args.imu else None)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(part)
     spinning = True
@@ -309,7 +310,8 @@ def main() -> int:
     print(f"  crashes                      {int(crashed)}")
     print(f"  diagnostics levels seen      {levels}  (0 OK, 1 WARN, 2 ERROR)")
     if args.distortion:
-        print(f"  node frames_deskewed         {final_diag.get('frames_deskewed', '?')} (expected {n_in - 1 if args.imu else n_in - 2}: "
+        expected_deskewed = n_in - 1 if args.imu else n_in - 2
+        print(f"  node frames_deskewed         {final_diag.get('frames_deskewed', '?')} (expected {expected_deskewed}: "
               f"the first scan{'' if args.imu else ' and the second (no velocity yet)'} as measured)")
         print(f"  node point_times_ignored     {final_diag.get('point_times_ignored', '?')}")
     if args.imu:
