@@ -319,6 +319,8 @@ def main() -> int:
         print(f"  node frames_imu              {final_diag.get('frames_imu', '?')} (every scan after the first)")
         print(f"  node frames_without_imu      {final_diag.get('frames_without_imu', '?')}")
         print(f"  node imu_rejected            {final_diag.get('imu_rejected', '?')}")
+        print(f"  node sweeps_without_gyro     {final_diag.get('sweeps_without_gyro', '?')} (sweeps the gyro did not "
+              f"cover{'' if args.distortion else '; no point times, so none asked'})")
         print(f"  node imu_samples (kept)      {final_diag.get('imu_samples', '?')}")
         print(f"  node gyro_bias deg/s         {final_diag.get('gyro_bias', '?')}  (true "
               f"{' '.join(f'{v:.4f}' for v in args.imu_bias)}, not told)")
