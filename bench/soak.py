@@ -113,8 +113,10 @@ def main() -> int:
     truth = run.trajectory.poses
     stamp0 = 100.0  # stamps in seconds: stamp0 + k / rate
     gyro_stamps, gyro_rates = np.empty(0), np.empty((0, 3))
-    if args.imu:
-        gyro_stamps, gyro_rates = gyro_samples(truth, stamp0 + run.trajectory.stamps, rate_hz=args.imu_rate,
+    if args.imu:  # up to the end of the last sweep, one period past the last stamp
+        gyro_poses = np.concatenate([truth, run.trajectory.pose_at(run.trajectory.stamps[-1] + 1.0 / args.rate)[None]])
+        gyro_pose_stamps = stamp0 + np.r_[run.trajectory.stamps, run.trajectory.stamps[-1] + 1.0 / args.rate]
+        gyro_stamps, gyro_rates = gyro_samples(gyro_poses, gyro_pose_stamps, rate_hz=args.imu_rate,
                                                offset=0.5 / args.imu_rate, noise_std=np.radians(args.imu_noise),
                                                bias=np.radians(args.imu_bias), seed=args.seed)
 
@@ -204,7 +206,8 @@ def main() -> int:
     rss_trend: list[tuple[int, float]] = []
     rss_start = None
     period = 1.0 / args.rate
-    t_next = time.monotonic()
+    # with the gyro, the first scan goes out when its sweep is complete, its samples at their times before it
+    t_next = time.monotonic() + (period if args.imu else 0.0)
     late_publishes = 0
     crashed = False
     imu_sent = 0
@@ -310,9 +313,9 @@ def main() -> int:
     print(f"  crashes                      {int(crashed)}")
     print(f"  diagnostics levels seen      {levels}  (0 OK, 1 WARN, 2 ERROR)")
     if args.distortion:
-        expected_deskewed = n_in - 1 if args.imu else n_in - 2
+        expected_deskewed = n_in if args.imu else n_in - 2
         print(f"  node frames_deskewed         {final_diag.get('frames_deskewed', '?')} (expected {expected_deskewed}: "
-              f"the first scan{'' if args.imu else ' and the second (no velocity yet)'} as measured)")
+              f"{'all, the first by the gyro' if args.imu else 'the first two (no velocity yet) as measured'})")
         print(f"  node point_times_ignored     {final_diag.get('point_times_ignored', '?')}")
     if args.imu:
         print(f"  gyro samples sent / late     {imu_sent} / {late_imu}")
