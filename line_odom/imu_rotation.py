@@ -56,6 +56,10 @@ class GyroRotation:
     def __len__(self) -> int:
         return len(self._stamps)
 
+    @property
+    def newest_ns(self) -> int | None:
+        return self._stamps[-1] if self._stamps else None
+
     def clear(self) -> None:
         self._stamps.clear()
         self._rates.clear()

@@ -86,6 +86,8 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("imu.bias_gain", float, 0.05, "share of each scan interval's difference between the gyro's and the "
                   "registered rotation taken into the gyro bias (a frame registered in full, within 0.5 deg); 0 = the "
                   "bias stays imu.gyro_bias", 0.0, 1.0),
+    NodeParameter("imu.wait", float, 0.03, "seconds a scan waits for the gyro samples that reach past its sweep (a scan "
+                  "that arrives with its samples, or before them) before it is registered without them", 0.0, 1.0),
     NodeParameter("imu.max_gap", float, 0.05, "seconds without a gyro sample a scan interval may contain (also "
                   "between a scan's stamp and the nearest sample past it); a longer gap: the scan uses the "
                   "plain prediction and counts in frames_without_imu", 0.001, 10.0),
@@ -167,6 +169,7 @@ class NodeSettings:
     imu_base_to_imu: list = dataclasses.field(default_factory=lambda: [0.0] * 6)
     imu_gyro_bias: list = dataclasses.field(default_factory=lambda: [0.0] * 3)
     imu_bias_gain: float = 0.05
+    imu_wait: float = 0.03
     imu_max_gap: float = 0.05
     imu_window: float = 5.0
 
@@ -269,6 +272,7 @@ class OdometryProcessor:
         if self.guess is not None:
             self.counters.update(frames_guessed=0, frames_unguessed=0, guess_rejected=0)
         self._imu_lock = threading.Lock()
+        self._imu_arrived = threading.Condition(self._imu_lock)  # notified by add_imu
         self.gyro = (GyroRotation(max_gap=self.settings.imu_max_gap, window=self.settings.imu_window,
                                   bias=self.settings.imu_gyro_bias) if self.settings.imu_enabled else None)
         # T_base_imu: the parameter's, or with base_to_sensor_from_tf looked up on /tf_static (None until then)
@@ -370,6 +374,7 @@ class OdometryProcessor:
             return False
         try:
             with self._imu_lock:  # (not the frame lock: the executor must not wait for a registration)
+                self._imu_arrived.notify_all()
                 if not self.gyro.add(msg):
                     self._info("imu stamp went back by more than imu.window: its earlier samples are forgotten")
         except convert.ConversionError as err:
@@ -473,6 +478,14 @@ class OdometryProcessor:
             return None
         return in_sensor_frame(R_imu, self.T_sensor_base @ self.T_base_imu)
 
+    def _await_gyro(self, until_ns: int) -> None:
+        """Waits up to imu.wait for a gyro sample at or past `until_ns` (the scan's stamp or its sweep's end): a scan's
+        message can come before the samples of its sweep (a burst, a driver starting up)."""
+        if self.gyro is None or self.settings.imu_wait <= 0.0:
+            return
+        with self._imu_arrived:
+            self._imu_arrived.wait_for(lambda: (self.gyro.newest_ns or -1) >= until_ns, timeout=self.settings.imu_wait)
+
     def _sweep_rate(self, stamp_ns: int, times: np.ndarray) -> np.ndarray | None:
         """The sensor's mean angular velocity (rad/s, its axes) over a sweep's times by the gyro (imu.enabled), or
         None: no gyro, the mounting not known yet, or the samples do not cover the sweep (counted in
@@ -544,7 +557,9 @@ class OdometryProcessor:
             times = None
         # (the time keyword only when there are times: engines without it keep working)
         extra = {} if times is None else {"time": times}
-        rate = None if times is None else self._sweep_rate(convert.stamp_to_ns(msg.header.stamp), times)
+        stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+        self._await_gyro(stamp_ns + (0 if times is None else max(0, round(float(times.max()) * 1e9))))
+        rate = None if times is None else self._sweep_rate(stamp_ns, times)
         if rate is not None:
             extra["sweep_rate"] = rate
         if cloud.organized:
@@ -569,6 +584,7 @@ class OdometryProcessor:
         if K is None:
             self._reject("frames_dropped", "no valid CameraInfo received yet for the depth image")
             return None
+        self._await_gyro(convert.stamp_to_ns(image.header.stamp))
         return self._register(lambda s, **guess: self.engine.register_depth(depth, K, s, **guess),
                               convert.stamp_to_ns(image.header.stamp),
                               str(image.header.frame_id), t0, receive_time)

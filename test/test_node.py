@@ -684,6 +684,48 @@ def test_gyro_rotation_from_an_imu_topic(run_node):
     assert values["prediction"] == "constant_velocity+imu"
 
 
+@pytest.mark.parametrize("wait", [0.5, 0.0])
+def test_a_scan_before_its_gyro_samples_waits_for_them(run_node, wait):
+    # Each scan of the yaw-flip drive is published 50 ms before the gyro samples of its interval (a driver's burst at
+    # start-up, a late IMU). With imu.wait the node waits for a sample past the scan's stamp and every frame after the
+    # first has the gyro's rotation; with imu.wait 0 a frame whose samples have not come is registered without it.
+    import time as _time
+
+    from sensor_msgs.msg import Imu
+
+    import test_turns
+    from line_odom.sim.gyro import gyro_samples
+    from test_degenerate_scenes import _cloud_msg
+
+    drive = list(test_turns._turning_scans("hdl64", 10.0))[:6]
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "base_frame": "velodyne", "imu.enabled": True,
+                        "imu.wait": wait})
+    pub = h.publisher(PointCloud2, node.topic("points"))
+    imu_pub = h.publisher(Imu, node.topic("imu"), reliable=True, depth=100)
+    h.wait_matched(pub, node, STARTUP_S)
+    h.wait_matched(imu_pub, node, STARTUP_S)
+    poses = np.array([T for T, _, _ in drive])
+    stamps = np.array([1000.0 + s for _, _, s in drive])
+    samples, rates = gyro_samples(poses, stamps, rate_hz=200.0, offset=0.0025, seed=1)
+    sent = 0
+    for k, (_, scan, _) in enumerate(drive):
+        pub.publish(_cloud_msg(scan.points, convert.sec_to_stamp(float(stamps[k])), ring=scan.ring))
+        _time.sleep(0.05)
+        while sent < len(samples) and samples[sent] <= stamps[k] + 0.01:
+            msg = Imu()
+            msg.header.stamp = convert.sec_to_stamp(float(samples[sent]))
+            msg.header.frame_id = "velodyne"
+            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in rates[sent])
+            imu_pub.publish(msg)
+            sent += 1
+        h.wait_for(lambda: h.odom_at(ns(float(stamps[k]))), FRAME_S, f"odometry at {stamps[k]}", node)
+    values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == len(drive), "frames_processed")
+    if wait > 0:
+        assert (int(values["frames_imu"]), int(values["frames_without_imu"])) == (len(drive) - 1, 0), values
+    else:
+        assert int(values["frames_without_imu"]) >= 1, values
+
+
 def test_motion_distorted_sweeps_with_point_times_are_deskewed(run_node):
     # The simulated street (VLP-16, 10 m/s, 1 cm noise) with sweeps cast while the sensor moves, each point's time
     # (float32 s after the stamp, the Velodyne driver's `time`) in the cloud. The vlp16 preset deskews (sensor.deskew):
