@@ -144,3 +144,13 @@ def test_engine_rejects_what_the_schema_rejects():
             line_odom_core._core.Odometry({name: -1})
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 6}))
     assert odom._engine.settings()["downsample"] == 6
+
+
+@pytest.mark.parametrize("preset", ["kitti_hdl64", "vlp16", "ouster_os128", "tum_kinect"])
+def test_every_node_parameter_is_spelled_out_in_every_preset(preset):
+    """The presets are where users read the node's parameters: each one is in each file (a key that slipped into a
+    comment, or was never added, would silently take its default)."""
+    from line_odom.processor import NODE_PARAMETERS
+
+    extra = line_odom_core.load_config(preset).extra
+    assert [p.name for p in NODE_PARAMETERS if p.name not in extra] == []
