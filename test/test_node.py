@@ -638,6 +638,37 @@ def test_sensor_mounting_from_a_latched_tf_static(run_node):
         early.close()
 
 
+def _yaw_flip_node(run_node, frames, params):
+    """A node with imu.enabled and publishers for scans and gyro samples; the first `frames` scans of test_turns.py's
+    yaw-flip drive (HDL-64E at 1/36): (node, harness, points publisher, imu publisher, drive, poses, stamps)."""
+    from sensor_msgs.msg import Imu
+
+    import test_turns
+
+    drive = list(test_turns._turning_scans("hdl64", 10.0))[:frames]
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "base_frame": "velodyne", "imu.enabled": True,
+                        **params})
+    pub = h.publisher(PointCloud2, node.topic("points"))
+    imu_pub = h.publisher(Imu, node.topic("imu"), reliable=True, depth=100)
+    h.wait_matched(pub, node, STARTUP_S)
+    h.wait_matched(imu_pub, node, STARTUP_S)
+    return node, h, pub, imu_pub, drive, np.array([T for T, _, _ in drive]), np.array([1000.0 + s for _, _, s in drive])
+
+
+def _publish_gyro(imu_pub, samples, rates, sent, until, frame_id):
+    """Publishes the samples from index `sent` up to stamp `until` (s); the index of the next one."""
+    from sensor_msgs.msg import Imu
+
+    while sent < len(samples) and samples[sent] <= until:
+        msg = Imu()
+        msg.header.stamp = convert.sec_to_stamp(float(samples[sent]))
+        msg.header.frame_id = frame_id
+        msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in rates[sent])
+        imu_pub.publish(msg)
+        sent += 1
+    return sent
+
+
 def test_gyro_rotation_from_an_imu_topic(run_node):
     # The yaw-flip drive of test_turns.py (HDL-64E at 1/36, 10 deg a frame reversing every 3 frames), its first 12
     # scans: from the constant-velocity prediction frame 9 is registered 7.2 deg off (docs/NODE.md "Turns"). With
@@ -645,35 +676,18 @@ def test_gyro_rotation_from_an_imu_topic(run_node):
     # published as on a robot, where a scan's message follows the IMU's by a sweep (the driver sends it complete), every
     # frame is within 0.3 deg (measured on these scans through replay: 0.01 deg max) and the diagnostics count a gyro
     # rotation for each frame after the first.
-    from sensor_msgs.msg import Imu
-
-    import test_turns
     from line_odom.sim.gyro import gyro_samples
     from test_degenerate_scenes import _cloud_msg
 
-    drive = list(test_turns._turning_scans("hdl64", 10.0))[:12]
     base_to_imu = [0.0, 0.1, -0.2, np.pi, 0.0, 0.0]
-    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "base_frame": "velodyne", "imu.enabled": True,
-                        "imu.base_to_imu": base_to_imu})
-    pub = h.publisher(PointCloud2, node.topic("points"))
-    imu_pub = h.publisher(Imu, node.topic("imu"), reliable=True, depth=100)
-    h.wait_matched(pub, node, STARTUP_S)
-    h.wait_matched(imu_pub, node, STARTUP_S)
-    poses = np.array([T for T, _, _ in drive])
-    stamps = np.array([1000.0 + s for _, _, s in drive])
+    node, h, pub, imu_pub, drive, poses, stamps = _yaw_flip_node(run_node, 12, {"imu.base_to_imu": base_to_imu})
     samples, rates = gyro_samples(poses, stamps, rate_hz=200.0, offset=0.0025, noise_std=0.002,
                                   bias=(0.002, -0.003, np.radians(0.5)),
                                   T_body_imu=frames.pose_from_params(base_to_imu, "imu"), seed=1)
     sent = 0
     odoms = []
     for k, (_, scan, _) in enumerate(drive):
-        while sent < len(samples) and samples[sent] <= stamps[k] + 0.1:
-            msg = Imu()
-            msg.header.stamp = convert.sec_to_stamp(float(samples[sent]))
-            msg.header.frame_id = "imu_link"
-            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in rates[sent])
-            imu_pub.publish(msg)
-            sent += 1
+        sent = _publish_gyro(imu_pub, samples, rates, sent, stamps[k] + 0.1, "imu_link")
         cloud = _cloud_msg(scan.points, convert.sec_to_stamp(float(stamps[k])), ring=scan.ring)
         odoms.append(publish_and_wait(h, node, pub, cloud, float(stamps[k])))
     estimated = np.array([pose_matrix(o.pose.pose) for o in odoms])
@@ -691,33 +705,16 @@ def test_a_scan_before_its_gyro_samples_waits_for_them(run_node, wait):
     # first has the gyro's rotation; with imu.wait 0 a frame whose samples have not come is registered without it.
     import time as _time
 
-    from sensor_msgs.msg import Imu
-
-    import test_turns
     from line_odom.sim.gyro import gyro_samples
     from test_degenerate_scenes import _cloud_msg
 
-    drive = list(test_turns._turning_scans("hdl64", 10.0))[:6]
-    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "base_frame": "velodyne", "imu.enabled": True,
-                        "imu.wait": wait})
-    pub = h.publisher(PointCloud2, node.topic("points"))
-    imu_pub = h.publisher(Imu, node.topic("imu"), reliable=True, depth=100)
-    h.wait_matched(pub, node, STARTUP_S)
-    h.wait_matched(imu_pub, node, STARTUP_S)
-    poses = np.array([T for T, _, _ in drive])
-    stamps = np.array([1000.0 + s for _, _, s in drive])
+    node, h, pub, imu_pub, drive, poses, stamps = _yaw_flip_node(run_node, 6, {"imu.wait": wait})
     samples, rates = gyro_samples(poses, stamps, rate_hz=200.0, offset=0.0025, seed=1)
     sent = 0
     for k, (_, scan, _) in enumerate(drive):
         pub.publish(_cloud_msg(scan.points, convert.sec_to_stamp(float(stamps[k])), ring=scan.ring))
         _time.sleep(0.05)
-        while sent < len(samples) and samples[sent] <= stamps[k] + 0.01:
-            msg = Imu()
-            msg.header.stamp = convert.sec_to_stamp(float(samples[sent]))
-            msg.header.frame_id = "velodyne"
-            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in rates[sent])
-            imu_pub.publish(msg)
-            sent += 1
+        sent = _publish_gyro(imu_pub, samples, rates, sent, stamps[k] + 0.01, "velodyne")
         h.wait_for(lambda: h.odom_at(ns(float(stamps[k]))), FRAME_S, f"odometry at {stamps[k]}", node)
     values = wait_diagnostics(h, node, lambda v: int(v["frames_processed"]) == len(drive), "frames_processed")
     if wait > 0:
