@@ -568,7 +568,7 @@ class OdometryProcessor:
         else:
             run = lambda stamp, **guess: self.engine.register_points(  # noqa: E731
                 cloud.xyz, stamp, ring=cloud.ring, **extra, **guess)
-        return self._register(run, convert.stamp_to_ns(msg.header.stamp), cloud.frame_id, t0, receive_time)
+        return self._register(run, stamp_ns, cloud.frame_id, t0, receive_time)
 
     def process_depth(self, image, camera_info=None, receive_time: float | None = None) -> FrameOutput | None:
         """One depth Image (+ its CameraInfo, or the last valid one) -> outputs; None when dropped."""
@@ -584,9 +584,9 @@ class OdometryProcessor:
         if K is None:
             self._reject("frames_dropped", "no valid CameraInfo received yet for the depth image")
             return None
-        self._await_gyro(convert.stamp_to_ns(image.header.stamp))
-        return self._register(lambda s, **guess: self.engine.register_depth(depth, K, s, **guess),
-                              convert.stamp_to_ns(image.header.stamp),
+        stamp_ns = convert.stamp_to_ns(image.header.stamp)
+        self._await_gyro(stamp_ns)
+        return self._register(lambda s, **guess: self.engine.register_depth(depth, K, s, **guess), stamp_ns,
                               str(image.header.frame_id), t0, receive_time)
 
     # ------------------------------------------------------------------ core

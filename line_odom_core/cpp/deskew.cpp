@@ -14,6 +14,12 @@ namespace {
 // 0.1 ms a bin, 0.1 mm at 1 m/s).
 constexpr int kBins = 1024;
 
+// When the point in `cell` was measured: time[] is indexed by the input point (source_index), or by the cell of an
+// organized input.
+double cell_time(const RangeImage& image, const double* time, std::size_t cell) {
+  return time[image.source_index.empty() ? cell : static_cast<std::size_t>(image.source_index[cell])];
+}
+
 }  // namespace
 
 SweepVelocity SweepVelocity::over(const RigidTransform& motion, double interval) {
@@ -34,10 +40,7 @@ RigidTransform SweepVelocity::at(double tau) const {
 
 void deskew_image(RangeImage* image, const double* time, const SweepVelocity& velocity) {
   if (!velocity.moving()) return;
-  const bool by_source = !image->source_index.empty();
-  const auto time_of = [&](std::size_t cell) {
-    return time[by_source ? static_cast<std::size_t>(image->source_index[cell]) : cell];
-  };
+  const auto time_of = [&](std::size_t cell) { return cell_time(*image, time, cell); };
   double t0 = 0.0, t1 = 0.0;
   bool any = false;
   for (std::size_t cell = 0; cell < image->points.size(); ++cell) {
@@ -57,14 +60,13 @@ void deskew_image(RangeImage* image, const double* time, const SweepVelocity& ve
 }
 
 std::vector<double> column_times(const RangeImage& image, const double* time, int step) {
-  const bool by_source = !image.source_index.empty();
   const int columns = (image.cols + step - 1) / step;
   std::vector<double> sum(static_cast<std::size_t>(columns), 0.0), count(static_cast<std::size_t>(columns), 0.0);
   for (int r = 0; r < image.rows; ++r)
     for (int c = 0; c < image.cols; c += step) {
       const std::size_t cell = static_cast<std::size_t>(r) * image.cols + c;
       if (!image.valid[cell]) continue;
-      sum[static_cast<std::size_t>(c / step)] += time[by_source ? static_cast<std::size_t>(image.source_index[cell]) : cell];
+      sum[static_cast<std::size_t>(c / step)] += cell_time(image, time, cell);
       count[static_cast<std::size_t>(c / step)] += 1.0;
     }
   std::vector<double> mean(static_cast<std::size_t>(columns), std::numeric_limits<double>::quiet_NaN());

@@ -43,11 +43,14 @@ constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (
                                          // as all 3000, at a fifth of the cost (docs/RESULTS.md)
 
 // The caller's motion guess: finite, with an orthonormal rotation of determinant +1.
+// A finite orthonormal matrix with determinant +1.
+bool is_rotation(const Mat3& R) {
+  return R.allFinite() && (R.transpose() * R - Mat3::Identity()).cwiseAbs().maxCoeff() < 1e-6 && R.determinant() > 0.0;
+}
+
 void check_guess(const RigidTransform* guess) {
   if (guess == nullptr) return;
-  const bool rigid = guess->is_finite() && (guess->R.transpose() * guess->R - Mat3::Identity()).cwiseAbs().maxCoeff() <
-                                               1e-6 && guess->R.determinant() > 0.0;
-  if (!rigid)
+  if (!(guess->t.allFinite() && is_rotation(guess->R)))
     throw std::invalid_argument("guess: expected a finite rigid transform T_prev_curr (orthonormal rotation, "
                                 "determinant +1)");
 }
@@ -58,10 +61,7 @@ void check_rotation_guess(const Mat3* rotation_guess, const RigidTransform* gues
   if (guess != nullptr)
     throw std::invalid_argument("rotation_guess: expected no guess beside it (guess replaces the whole prediction, "
                                 "rotation_guess only its rotation); pass one of them");
-  const Mat3& R = *rotation_guess;
-  const bool rotation = R.allFinite() && (R.transpose() * R - Mat3::Identity()).cwiseAbs().maxCoeff() < 1e-6 &&
-                        R.determinant() > 0.0;
-  if (!rotation)
+  if (!is_rotation(*rotation_guess))
     throw std::invalid_argument("rotation_guess: expected a finite rotation matrix R_prev_curr (orthonormal, "
                                 "determinant +1)");
 }
@@ -362,9 +362,6 @@ FrameResult Odometry::register_organized(const Scalar* data, int rows, int cols,
   return register_range_image(image, stamp, watch.ms(), 1, guess, rotation_guess);
 }
 
-// Both scans of a registration are deskewed at the same velocity: deskewed at different ones, the pair would differ by
-// the change (measured on distorted simulated sweeps: deskewing each scan at the velocity of the frame before made the
-// error grow frame by frame, 0.003 -> 0.05 m a frame at 1/36; the pair alike: 0.0018 m, as with the true velocity).
 template <typename Scalar>
 FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std::size_t stride,
                                      const std::int32_t* ring, int rows, int cols, double stamp,
@@ -394,15 +391,15 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   sweep.column_time = column_times(image, time, std::max(1, config_.downsample / step));
 
   Stopwatch deskew_watch;
-  previous_deskewed_again_ = have_prev_sweep_ && deskew_previous_again(sweep.velocity);
-  sweep_deskewed_ = sweep.velocity.moving();
+  const bool previous_again = have_prev_sweep_ && deskew_previous_again(sweep.velocity);
   deskew_image(&image, time, sweep.velocity);
-  deskew_ms_ = deskew_watch.ms();
+  const double deskew_ms = deskew_watch.ms();
   FrameResult result = register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
+  result.stats.deskewed = sweep.velocity.moving();
+  result.stats.previous_deskewed_again = previous_again;
+  result.stats.ms.deskew = deskew_ms;  // (part of organize, which register_range_image was given)
   prev_sweep_ = std::move(sweep);
   have_prev_sweep_ = true;
-  sweep_deskewed_ = previous_deskewed_again_ = false;
-  deskew_ms_ = 0.0;
   return result;
 }
 
@@ -1032,9 +1029,6 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
   result.stamp = stamp;
   FrameStats& st = result.stats;
   st.ms.organize = organize_ms;
-  st.ms.deskew = deskew_ms_;
-  st.deskewed = sweep_deskewed_;
-  st.previous_deskewed_again = previous_deskewed_again_;
   if (have_velocity_ && stamp - prev_stamp_ > config_.registration.max_prediction_gap) {
     // After a pause the last motion says nothing about this one: no extrapolation, find the motion afresh.
     have_velocity_ = false;

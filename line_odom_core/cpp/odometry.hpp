@@ -291,9 +291,6 @@ class Odometry {
   FeatureWindow window_;  // the last registration.window scans' features, in the previous scan's frame
   SweepTimes prev_sweep_;  // the previous scan's, when it had times (sensor.deskew)
   bool have_prev_sweep_ = false;
-  // set by register_sweep for the frame register_range_image is about to register
-  bool sweep_deskewed_ = false, previous_deskewed_again_ = false;
-  double deskew_ms_ = 0.0;
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 
