@@ -230,3 +230,16 @@ def test_eval_errors_on_missing_file_and_mismatch(tmp_path, capsys):
     evaluation.write_tum(far, evaluation.Trajectory(_straight_line(3), np.array([1.0, 2.0, 3.0])))
     assert main(["eval", str(far), str(TUM_GT)]) == 1
     assert "no estimate timestamp" in capsys.readouterr().err
+
+
+def test_paired_difference_tells_a_shift_from_noise():
+    rng = np.random.default_rng(7)
+    common = rng.normal(0.05, 0.02, 9)  # the frames' shared difficulty (nine KITTI frame pairs)
+    lower = common + rng.normal(0.0, 0.002, 9)
+    mean, low, high = metrics.paired_difference(lower, common + 0.01)
+    assert high < 0.0 and low < mean < high and abs(mean + 0.01) < 0.003
+    mean, low, high = metrics.paired_difference(common + rng.normal(0.0, 0.01, 9), common + rng.normal(0.0, 0.01, 9))
+    assert low < 0.0 < high
+    assert metrics.paired_difference(common + 1.0, common) == pytest.approx((1.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="a and b"):
+        metrics.paired_difference(common, common[:5])
