@@ -144,6 +144,16 @@ class TumSequence:
     K: np.ndarray
     poses: np.ndarray | None  # (N, 4, 4) camera poses at the depth stamps, or None
     pose_valid: np.ndarray | None
+    ground_truth: tuple[np.ndarray, np.ndarray] | None = None  # groundtruth.txt as read: stamps (M,), poses (M, 4, 4)
+
+    def poses_at_offset(self, offset: float) -> tuple[np.ndarray, np.ndarray]:
+        """Ground-truth poses at the depth stamps + `offset` seconds (a depth image stamped after the scene it shows:
+        a negative offset) and their validity, interpolated as `poses` is."""
+        if self.ground_truth is None:
+            raise ValueError(f"{self.root}: no groundtruth.txt")
+        if not np.isfinite(offset):
+            raise ValueError(f"offset: expected finite seconds, got {offset!r}")
+        return interpolate_poses(*self.ground_truth, self.stamps + offset)
 
     @classmethod
     def open(cls, root: str | Path, frames: int | None = None, camera: str = "fr1") -> "TumSequence":
@@ -160,11 +170,11 @@ class TumSequence:
             raise ValueError(f"camera: expected one of {sorted(TUM_INTRINSICS)}, got {camera!r}")
         fx, fy, cx, cy = TUM_INTRINSICS[camera]
         K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-        poses = valid = None
+        poses = valid = ground_truth = None
         if (root / "groundtruth.txt").exists():
-            gt_stamps, gt_poses = read_tum_trajectory(root / "groundtruth.txt")
-            poses, valid = interpolate_poses(gt_stamps, gt_poses, stamps)
-        return cls(root, stamps, paths, K, poses, valid)
+            ground_truth = read_tum_trajectory(root / "groundtruth.txt")
+            poses, valid = interpolate_poses(*ground_truth, stamps)
+        return cls(root, stamps, paths, K, poses, valid, ground_truth)
 
     def __len__(self) -> int:
         return len(self.depth_paths)

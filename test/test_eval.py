@@ -1,6 +1,7 @@
 """Trajectory metrics: agreement with evo (evo_rpe / evo_ape -a) to 1e-6, and the KITTI devkit metric on
 constructed trajectories with known answers."""
 import copy
+import dataclasses
 import json
 
 import numpy as np
@@ -243,3 +244,22 @@ def test_paired_difference_tells_a_shift_from_noise():
     assert metrics.paired_difference(common + 1.0, common) == pytest.approx((1.0, 1.0, 1.0))
     with pytest.raises(ValueError, match="a and b"):
         metrics.paired_difference(common, common[:5])
+
+
+def test_tum_ground_truth_at_an_offset():
+    seq = datasets.tum_sequence(40)
+    at_zero, valid = seq.poses_at_offset(0.0)
+    assert np.array_equal(at_zero, seq.poses) and np.array_equal(valid, seq.pose_valid)
+    earlier, valid = seq.poses_at_offset(-0.04)
+    assert valid.sum() >= 37
+    # fr1/xyz moves ~0.2 m/s: 40 ms earlier every pose is a few mm back along the path, never the same
+    shift = np.linalg.norm(earlier[valid, :3, 3] - seq.poses[valid, :3, 3], axis=1)
+    assert 1e-4 < np.median(shift) < 0.05
+    stamps, poses = seq.ground_truth
+    expected, _ = datasets.interpolate_poses(stamps, poses, seq.stamps - 0.04)
+    assert np.allclose(earlier, expected)
+    with pytest.raises(ValueError, match="offset"):
+        seq.poses_at_offset(float("nan"))
+    no_truth = dataclasses.replace(seq, ground_truth=None)
+    with pytest.raises(ValueError, match="groundtruth.txt"):
+        no_truth.poses_at_offset(0.0)
