@@ -18,7 +18,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from line_odom import convert, frames
+from line_odom import convert, frames, sensor_check
 from line_odom.imu_rotation import GyroRotation, in_sensor_frame
 from line_odom.motion_guess import MotionGuess
 from line_odom.static_tf import StaticTransforms, TransformError
@@ -28,6 +28,7 @@ INPUTS = ("pointcloud", "depth")
 FIRST_POSE_VARIANCE = 1e-9  # the first pose is exact by definition; a floor keeps the covariance definite
 UNKNOWN_TWIST_VARIANCE = 1e6  # first frame after a (re)start: no motion observed yet
 LOG_REPEAT_S = 5.0
+SENSOR_LOG_REPEAT_S = 30.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -266,7 +267,7 @@ class OdometryProcessor:
         self._K: np.ndarray | None = None
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
-            frames_duplicate=0, resets=0, frames_deskewed=0, point_times_ignored=0)
+            frames_duplicate=0, resets=0, frames_deskewed=0, point_times_ignored=0, clouds_not_fitting_sensor=0)
         self.guess = (MotionGuess(self.settings.base_frame, tolerance=self.settings.guess_tolerance,
                                   window=self.settings.guess_window) if self.settings.guess_enabled else None)
         if self.guess is not None:
@@ -287,6 +288,11 @@ class OdometryProcessor:
         if self.static_tf is not None:
             self.counters.update(frames_no_extrinsic=0, tf_rejected=0)
         self.last_error: str | None = None
+        # the sensor model checked against the clouds until one fits (sensor_check); the reason one did not
+        self.sensor_fit = "not checked yet"
+        self._sensor_checked = False
+        self._sensor_advice: str | None = None
+        self._sensor_logged = -math.inf  # time.monotonic() of the last sensor_fit warning
         self._last_logged: tuple[str, float] = ("", 0.0)
         self._suppressed = 0
         self._receive_times: collections.deque = collections.deque(maxlen=50)
@@ -550,6 +556,8 @@ class OdometryProcessor:
         except convert.ConversionError as err:
             self._reject("frames_malformed", str(err))
             return None
+        if not cloud.organized:
+            self._check_sensor(cloud)
         try:
             times = convert.sweep_times(cloud)
         except convert.ConversionError as err:  # registered as measured: the sweep is not corrected
@@ -569,6 +577,33 @@ class OdometryProcessor:
             run = lambda stamp, **guess: self.engine.register_points(  # noqa: E731
                 cloud.xyz, stamp, ring=cloud.ring, **extra, **guess)
         return self._register(run, stamp_ns, cloud.frame_id, t0, receive_time)
+
+    def _check_sensor(self, cloud) -> None:
+        """Until a cloud fits the engine's sensor model: a cloud that does not is counted (clouds_not_fitting_sensor)
+        and logged every SENSOR_LOG_REPEAT_S with the preset that fits it; it is still registered."""
+        if self._sensor_checked or not hasattr(self.engine, "sensor_fit"):
+            return
+        try:
+            fit = self.engine.sensor_fit(cloud.xyz, ring=cloud.ring)
+        except ValueError:  # the registration reports the input
+            return
+        problem = sensor_check.problem(fit)
+        if problem is None:
+            if fit["points"] >= sensor_check.MIN_POINTS:
+                self._sensor_checked, self.sensor_fit = True, "ok"
+            return
+        if self._sensor_advice is None:
+            from line_odom_core import Odometry
+
+            self._sensor_advice = sensor_check.advice(
+                lambda preset: Odometry(load_config(preset)).sensor_fit(cloud.xyz, ring=cloud.ring))
+        self.sensor_fit = f"{problem}: {self._sensor_advice}"
+        with self._count_lock:
+            self.counters["clouds_not_fitting_sensor"] += 1
+            self.last_error = self.sensor_fit
+        if time.monotonic() - self._sensor_logged >= SENSOR_LOG_REPEAT_S:
+            self._sensor_logged = time.monotonic()
+            self._warn(f"the clouds do not fit the sensor model, registering them anyway: {self.sensor_fit}")
 
     def process_depth(self, image, camera_info=None, receive_time: float | None = None) -> FrameOutput | None:
         """One depth Image (+ its CameraInfo, or the last valid one) -> outputs; None when dropped."""
@@ -760,6 +795,8 @@ class OdometryProcessor:
             values["persistence"] = " ".join(f"{a:.2f}" for a in stats["persistence"])
         for stage, ms in (stats.get("ms") or {}).items():
             values[f"ms.{stage}"] = ms
+        if self.settings.input == "pointcloud":
+            values["sensor_fit"] = self.sensor_fit
         values["last_error"] = last_error or ""
         return values
 
@@ -793,7 +830,8 @@ class OdometryProcessor:
                           ("imu_rejected", "imu message(s) rejected"),
                           ("frames_no_extrinsic", "frame(s) dropped: the sensor's mounting not on /tf_static yet"),
                           ("tf_rejected", "/tf_static transform(s) rejected"),
-                          ("point_times_ignored", "frame(s) registered without deskewing (unusable point times)")):
+                          ("point_times_ignored", "frame(s) registered without deskewing (unusable point times)"),
+                          ("clouds_not_fitting_sensor", "cloud(s) not fitting the sensor model (sensor_fit)")):
             if since.get(key):
                 problems.append(f"{since[key]} {text}")
         if values["frames_processed"] == 0:

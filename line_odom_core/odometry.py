@@ -209,6 +209,14 @@ class Odometry:
         ring_arr = None if ring is None else np.ascontiguousarray(ring, dtype=np.int32)
         return self._engine.downsampled_points(pts, ring_arr)
 
+    def sensor_fit(self, xyz: np.ndarray, *, ring: np.ndarray | None = None) -> dict:
+        """How an unorganized cloud fits the configured sensor model (every row and column): the model (name, rows,
+        elevations), how its rows were found, the valid points, those outside the model's beams, the rows holding
+        points in >= 1 % of the columns, 1 + the largest ring value, the cloud's 0.5 / 99.5 % elevations (deg)."""
+        pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
+        ring_arr = None if ring is None else np.ascontiguousarray(ring, dtype=np.int32)
+        return self._engine.sensor_fit(pts, ring_arr)
+
     @property
     def pose(self) -> np.ndarray:
         return self._engine.pose()

@@ -814,6 +814,7 @@ py::dict feature_config_py(const std::string& preset) {
 #include <variant>
 
 #include "odometry.hpp"
+#include "sensor_fit.hpp"
 
 namespace odometry_bindings {
 
@@ -1043,6 +1044,41 @@ py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::a
   return out;
 }
 
+py::dict sensor_fit(const line_odom::Odometry& o, const py::array& xyz,
+                    const std::optional<py::array_t<std::int32_t>>& ring) {
+  const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
+  const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
+  const std::int32_t* ring_ptr = ring_pointer(ring, n);
+  const bool is_float = py::isinstance<py::array_t<float>>(xyz);
+  const void* data = xyz.data();
+  line_odom::SensorFit fit;
+  {
+    py::gil_scoped_release release;
+    try {
+      const auto& limits = o.config().sensor.limits;
+      fit = is_float ? line_odom::fit_to_sensor(static_cast<const float*>(data), n, stride, ring_ptr,
+                                                o.sensor_model(), limits)
+                     : line_odom::fit_to_sensor(static_cast<const double*>(data), n, stride, ring_ptr,
+                                                o.sensor_model(), limits);
+    } catch (const std::invalid_argument& e) {
+      throw py::value_error(e.what());
+    }
+  }
+  py::dict d;
+  d["model"] = fit.model;
+  d["rows"] = fit.rows;
+  d["max_elevation_deg"] = fit.max_elevation_deg;
+  d["min_elevation_deg"] = fit.min_elevation_deg;
+  d["row_method"] = fit.row_method;
+  d["points"] = fit.points;
+  d["outside_rows"] = fit.outside_rows;
+  d["filled_rows"] = fit.filled_rows;
+  d["ring_rows"] = fit.ring_rows;
+  d["cloud_high_deg"] = fit.cloud_high_deg;
+  d["cloud_low_deg"] = fit.cloud_low_deg;
+  return d;
+}
+
 }  // namespace odometry_bindings
 
 
@@ -1141,6 +1177,7 @@ PYBIND11_MODULE(_core, m) {
         .def("register_depth", &ob::register_depth, py::arg("depth"), py::arg("K"), py::arg("stamp"),
              py::arg("guess") = py::none(), py::arg("rotation_guess") = py::none())
         .def("downsampled_points", &ob::downsampled_points, py::arg("xyz"), py::arg("ring") = py::none())
+        .def("sensor_fit", &ob::sensor_fit, py::arg("xyz"), py::arg("ring") = py::none())
         .def("reset",
              [](Odometry& o, const line_odom::Mat4& pose) { o.reset(line_odom::RigidTransform::from_matrix(pose)); },
              py::arg("pose"))

@@ -193,6 +193,7 @@ class Odometry {
   void reset(const RigidTransform& pose = RigidTransform::identity());
 
   const OdometryConfig& config() const { return config_; }
+  const SensorModel& sensor_model() const { return sensor_; }
   const RigidTransform& pose() const { return pose_; }
   int frames() const { return frames_; }
   const ScanFeatures& last_features() const { return prev_features_; }

@@ -584,7 +584,9 @@ PointRows assign_rows(const T* data, size_t count, size_t stride, const std::int
       if (ring[i] < 0 || ring[i] >= rows)
         throw std::invalid_argument("ring: value " + std::to_string(ring[i]) + " at point " + std::to_string(i) +
                                     " outside [0, " + std::to_string(rows) + ") of sensor model '" + model.name +
-                                    "'");
+                                    (ring[i] >= rows ? "' (a sensor with more beams: set the preset or sensor.model / "
+                                                       "sensor.rows to it)"
+                                                     : "'"));
       out.row_of[i] = ring[i];
       const T* p = data + i * stride;
       if (out.ok[i]) half.add(ring[i] < rows / 2, p[0], p[1], p[2]);
