@@ -47,4 +47,5 @@ def advice(fit_with: Callable[[str], Mapping[str, Any]]) -> str:
     params = "sensor.model, sensor.rows, sensor.max_elevation_deg, sensor.min_elevation_deg"
     if fitting:
         return f"set parameter 'preset' to {' or '.join(repr(n) for n in fitting)} (it fits), or {params}"
-    return f"set parameter 'preset' ({', '.join(LIDAR_PRESETS)}) or {params} to the sensor's (none of the presets fits)"
+    return (f"set parameter 'preset' ({', '.join(LIDAR_PRESETS)}) or {params} to the sensor's (none of the presets "
+            f"fits; is the cloud in the LiDAR's own frame, its origin at the sensor?)")

@@ -87,3 +87,12 @@ def test_rings_beyond_the_model_are_refused_naming_what_to_set():
     os128 = _scan("os128")[0].data
     with pytest.raises(ValueError, match="a sensor with more beams: set the preset or sensor.model"):
         line_odom_core.Odometry("kitti_hdl64").register_points(os128.points, 0.0, ring=os128.ring.astype(np.int32))
+
+
+def test_a_cloud_no_preset_fits_asks_for_the_sensor_frame(vlp16_frames):
+    scan = vlp16_frames[0].data
+    lowered = scan.points + np.array([0.0, 0.0, 1.7], dtype=scan.points.dtype)  # published in a base frame below it
+    fit = line_odom_core.Odometry("vlp16").sensor_fit(lowered)
+    assert "outside the beams of sensor model 'vlp16'" in sensor_check.problem(fit)
+    advice = sensor_check.advice(lambda preset: line_odom_core.Odometry(preset).sensor_fit(lowered))
+    assert "none of the presets fits" in advice and "the LiDAR's own frame" in advice
