@@ -12,7 +12,7 @@ motion per frame. Where both methods align the scans much more tightly than the 
 that sequence measures the ground truth's disagreement with the scans, not the methods' accuracy (bench/accuracy.py
 goals on KITTI 00, docs/RESULTS.md).
 
-Two more tables separate the ground truth's rotation from its translation and its errors from the methods':
+More tables separate the ground truth's rotation from its translation and its errors from the methods':
 - The scans aligned by one motion's rotation with another's translation (GT rotation + the method's translation, the
   method's rotation + GT translation): the part of the ground truth that leaves the scans less aligned is the part
   that disagrees with them.
@@ -20,7 +20,12 @@ Two more tables separate the ground truth's rotation from its translation and it
   with independent errors give each one's own error from their pairwise differences,
   var(A) = (var(A - B) + var(A - C) - var(B - C)) / 2, with var the mean squared norm of a frame's difference (m, deg).
   Nine frame pairs make these rough (a negative variance prints as a negative root); the mean signed rotation
-  difference to the ground truth (roll, pitch, yaw per frame) shows biases.
+  difference to the ground truth (roll, pitch, yaw per frame) shows biases. The hat assumes independent errors: a
+  ground truth that smooths the motion shares its error with a method that leans on its motion model.
+- Each motion's spread about its own mean over the clip (rms over frames of the per-frame motion minus the mean
+  motion), and the RPE of a constant motion (line_odom's mean motion, every frame): where the ground truth moves at
+  one constant velocity while the methods see the motion vary, and agree on it, the constant motion scores better
+  than either method, and the RPE measures how constant an estimate is.
 """
 from __future__ import annotations
 
@@ -38,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import line_odom_core  # noqa: E402
 from accuracy import KISS_HINT, kiss_available, kiss_odometry  # noqa: E402
 from line_odom.datasets import kitti_sequence  # noqa: E402
+from line_odom.metrics import relative_pose_errors  # noqa: E402
 
 
 def structure_points(xyz: np.ndarray) -> np.ndarray:
@@ -85,6 +91,38 @@ def print_swaps(seq: str, scans: list[np.ndarray], trees: list[cKDTree], motions
             rows = np.array([alignment(structure_points(scans[i - 1]), trees[i], swap(i))
                              for i in range(1, len(scans))])
             print(f"{seq:4} {label:24} | {rows[:, 0].mean():13.4f} {rows[:, 1].mean():6.3f} {rows[:, 2].mean():7.3f}")
+
+
+def motion_vectors(poses: list[np.ndarray]) -> np.ndarray:
+    """Per frame pair: (translation m, rotation vector deg) of the relative motion."""
+    out = []
+    for i in range(1, len(poses)):
+        T = relative(poses, i)
+        out.append(np.r_[T[:3, 3], np.degrees(Rotation.from_matrix(T[:3, :3]).as_rotvec())])
+    return np.array(out)
+
+
+def repeated(mean_motion: np.ndarray, frames: int) -> list[np.ndarray]:
+    step = np.eye(4)
+    step[:3, :3] = Rotation.from_rotvec(np.radians(mean_motion[3:])).as_matrix()
+    step[:3, 3] = mean_motion[:3]
+    poses = [np.eye(4)]
+    for _ in range(frames - 1):
+        poses.append(poses[-1] @ step)
+    return poses
+
+
+def print_constancy(seq: str, motions: dict) -> None:
+    row = []
+    for name, poses in motions.items():
+        m = motion_vectors(poses)
+        spread = m - m.mean(axis=0)
+        row.append(f"{np.sqrt(np.mean(np.sum(spread[:, :3] ** 2, axis=1))):7.4f} "
+                   f"{np.sqrt(np.mean(np.sum(spread[:, 3:] ** 2, axis=1))):6.3f}")
+    constant = repeated(motion_vectors(motions["line_odom"]).mean(axis=0), len(motions["GT"]))
+    t, r = relative_pose_errors(np.array(constant), np.array(motions["GT"]))
+    lo_t, lo_r = relative_pose_errors(np.array(motions["line_odom"]), np.array(motions["GT"]))
+    print(f"{seq:4} | {' | '.join(row)} | {t.mean():8.4f} {r.mean():6.3f} | {lo_t.mean():8.4f} {lo_r.mean():6.3f}")
 
 
 def print_hat(seq: str, motions: dict) -> None:
@@ -145,6 +183,15 @@ def main() -> None:
     print("-" * len(head))
     for seq, scans, trees, motions in runs:
         print_swaps(seq, scans, trees, motions)
+    names = list(runs[0][3]) if runs else []
+    print("\nEach motion's spread about its mean over the clip (rms t [m], r [deg]), and the RPE (mean t [m], r [deg]) "
+          "of line_odom's mean motion repeated every frame next to line_odom's own")
+    spreads = " | ".join(f"{name + ' spread':>14}" for name in names)
+    head = f"{'seq':4} | {spreads} | {'constant RPE':>15} | {'line_odom RPE':>15}"
+    print(head)
+    print("-" * len(head))
+    for seq, _, _, motions in runs:
+        print_constancy(seq, motions)
     if use_kiss:
         print("\nThree-cornered hat: rms of the pairwise differences per frame, each estimate's own rms error, and the "
               "mean signed rotation error (roll pitch yaw, deg a frame) against the ground truth")
