@@ -1020,23 +1020,30 @@ line_odom::FrameResult register_depth(line_odom::Odometry& o,
   }
 }
 
-py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::array& xyz,
-                                       const std::optional<py::array_t<std::int32_t>>& ring) {
+// f(points, count, stride, ring) on an (N, >=3) float32 / float64 cloud read in place, without the GIL; the engine's
+// std::invalid_argument becomes ValueError.
+template <typename F>
+auto on_cloud(const py::array& xyz, const std::optional<py::array_t<std::int32_t>>& ring, F&& f) {
   const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
   const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
   const std::int32_t* ring_ptr = ring_pointer(ring, n);
   const bool is_float = py::isinstance<py::array_t<float>>(xyz);
   const void* data = xyz.data();
-  std::vector<line_odom::Vec3> pts;
-  {
-    py::gil_scoped_release release;
-    try {
-      pts = is_float ? o.downsampled_points(static_cast<const float*>(data), n, stride, ring_ptr)
-                     : o.downsampled_points(static_cast<const double*>(data), n, stride, ring_ptr);
-    } catch (const std::invalid_argument& e) {
-      throw py::value_error(e.what());
-    }
+  py::gil_scoped_release release;
+  try {
+    return is_float ? f(static_cast<const float*>(data), n, stride, ring_ptr)
+                    : f(static_cast<const double*>(data), n, stride, ring_ptr);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
   }
+}
+
+py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::array& xyz,
+                                       const std::optional<py::array_t<std::int32_t>>& ring) {
+  const std::vector<line_odom::Vec3> pts =
+      on_cloud(xyz, ring, [&](const auto* data, std::size_t n, std::size_t stride, const std::int32_t* rings) {
+        return o.downsampled_points(data, n, stride, rings);
+      });
   py::array_t<double> out({static_cast<py::ssize_t>(pts.size()), static_cast<py::ssize_t>(3)});
   auto w = out.mutable_unchecked<2>();
   for (py::ssize_t i = 0; i < static_cast<py::ssize_t>(pts.size()); ++i)
@@ -1046,24 +1053,10 @@ py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::a
 
 py::dict sensor_fit(const line_odom::Odometry& o, const py::array& xyz,
                     const std::optional<py::array_t<std::int32_t>>& ring) {
-  const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
-  const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
-  const std::int32_t* ring_ptr = ring_pointer(ring, n);
-  const bool is_float = py::isinstance<py::array_t<float>>(xyz);
-  const void* data = xyz.data();
-  line_odom::SensorFit fit;
-  {
-    py::gil_scoped_release release;
-    try {
-      const auto& limits = o.config().sensor.limits;
-      fit = is_float ? line_odom::fit_to_sensor(static_cast<const float*>(data), n, stride, ring_ptr,
-                                                o.sensor_model(), limits)
-                     : line_odom::fit_to_sensor(static_cast<const double*>(data), n, stride, ring_ptr,
-                                                o.sensor_model(), limits);
-    } catch (const std::invalid_argument& e) {
-      throw py::value_error(e.what());
-    }
-  }
+  const line_odom::SensorFit fit =
+      on_cloud(xyz, ring, [&](const auto* data, std::size_t n, std::size_t stride, const std::int32_t* rings) {
+        return line_odom::fit_to_sensor(data, n, stride, rings, o.sensor_model(), o.config().sensor.limits);
+      });
   py::dict d;
   d["model"] = fit.model;
   d["rows"] = fit.rows;
