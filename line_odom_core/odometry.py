@@ -98,6 +98,16 @@ def _sweep_rate(value: Any, times: np.ndarray | None) -> np.ndarray | None:
     return rate
 
 
+def _ring(value: Any, count: int) -> np.ndarray | None:
+    if value is None:
+        return None
+    ring = np.asarray(value)
+    if ring.dtype.kind not in "iu" or ring.shape != (count,):
+        raise ValueError(f"ring: expected an integer array of shape ({count},), got shape {ring.shape} and dtype "
+                         f"{ring.dtype}")
+    return np.ascontiguousarray(ring, dtype=np.int32)
+
+
 def _guess(value: Any) -> np.ndarray | None:
     return None if value is None else _pose("guess", value)
 
@@ -161,13 +171,7 @@ class Odometry:
         before the first motion), turned with the rotation (stats["prediction"] ends in "+imu"). The registration
         starts from it, the motion prior is centred on it and held directions are held at it."""
         pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
-        ring_arr = None
-        if ring is not None:
-            ring_arr = np.asarray(ring)
-            if ring_arr.dtype.kind not in "iu" or ring_arr.shape != (pts.shape[0],):
-                raise ValueError(f"ring: expected an integer array of shape ({pts.shape[0]},), got shape "
-                                 f"{ring_arr.shape} and dtype {ring_arr.dtype}")
-            ring_arr = np.ascontiguousarray(ring_arr, dtype=np.int32)
+        ring_arr = _ring(ring, pts.shape[0])
         times = _times(time, (pts.shape[0],), "one time per point")
         return self._wrap(self._engine.register_points(pts, _stamp(stamp), ring_arr, _guess(guess),
                                                        _rotation_guess(rotation_guess, guess), times,
@@ -206,16 +210,14 @@ class Odometry:
         """The valid points the pipeline keeps from an unorganized cloud after organizing and downsampling (M, 3)
         (e.g. to feed another method exactly the same sparse scan)."""
         pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
-        ring_arr = None if ring is None else np.ascontiguousarray(ring, dtype=np.int32)
-        return self._engine.downsampled_points(pts, ring_arr)
+        return self._engine.downsampled_points(pts, _ring(ring, pts.shape[0]))
 
     def sensor_fit(self, xyz: np.ndarray, *, ring: np.ndarray | None = None) -> dict:
         """How an unorganized cloud fits the configured sensor model (every row and column): the model (name, rows,
         elevations), how its rows were found, the valid points, those outside the model's beams, the rows holding
         points in >= 1 % of the columns, 1 + the largest ring value, the cloud's 0.5 / 99.5 % elevations (deg)."""
         pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
-        ring_arr = None if ring is None else np.ascontiguousarray(ring, dtype=np.int32)
-        return self._engine.sensor_fit(pts, ring_arr)
+        return self._engine.sensor_fit(pts, _ring(ring, pts.shape[0]))
 
     @property
     def pose(self) -> np.ndarray:

@@ -19,6 +19,7 @@ from hypothesis.extra import numpy as hnp
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
 import line_odom_core
+from line_odom import sensor_check
 from line_odom_core import _core
 
 # CI: fixed seed, bounded examples. A deeper local run: LINE_ODOM_FUZZ_SCALE=10 LINE_ODOM_FUZZ_RANDOM=1 pytest ...
@@ -121,6 +122,11 @@ def test_register_points_random_arrays(xyz, stamp, ring):
         n = xyz.shape[0] if xyz.ndim else 0
         ring_arr = [rng.integers(-5, 40, n), rng.integers(-2**40, 2**40, n), rng.integers(0, 16, max(n - 1, 0)),
                     rng.uniform(0, 16, n)][ring % 4]
+    fit = result_or_value_error(odom.sensor_fit, xyz, ring=ring_arr, names=("xyz", "ring"))
+    if fit is not None:
+        assert min(fit["points"], fit["outside_rows"], fit["filled_rows"]) >= 0 and fit["outside_rows"] <= fit["points"]
+        assert np.isfinite([fit["cloud_high_deg"], fit["cloud_low_deg"]]).all() and fit["filled_rows"] <= fit["rows"]
+        sensor_check.problem(fit)  # a message or None, never an exception
     for k in range(2):  # the second call registers against the first frame
         res = result_or_value_error(odom.register_points, xyz, stamp + 0.1 * k if isinstance(stamp, float) else stamp,
                                     ring=ring_arr, names=("xyz", "ring", "stamp", "sensor", "point"))

@@ -41,7 +41,7 @@ SensorFit fit(const T* data, std::size_t count, std::size_t stride, const std::i
   out.cloud_high_deg = percentile(&elevations, 0.995);
   out.cloud_low_deg = percentile(&elevations, 0.005);
 
-  if (ring != nullptr && count > 0) out.ring_rows = 1 + *std::max_element(ring, ring + count);
+  if (ring != nullptr && count > 0) out.ring_rows = 1LL + *std::max_element(ring, ring + count);
   if (out.ring_rows > model.rows || (ring != nullptr && count > 0 && *std::min_element(ring, ring + count) < 0))
     return out;
 
