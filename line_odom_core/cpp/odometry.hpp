@@ -304,5 +304,8 @@ std::vector<std::pair<std::string, SettingValue>> config_settings(const Odometry
 
 // Velocity scaling of a motion: exp(alpha * log(T)) on SO(3) x R^3 (rotation angle and translation scaled).
 RigidTransform scale_motion(const RigidTransform& T, double alpha);
+// The directions of the subspace `a` (a projector) that the subspace `b` reaches within the angle of `cosine`, as a
+// projector.
+Mat6 common_directions(const Mat6& a, const Mat6& b, double cosine);
 
 }  // namespace line_odom
