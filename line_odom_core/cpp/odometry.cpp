@@ -431,30 +431,7 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
   if (prev.velocity.measured_rate) target.rate = prev.velocity.rate, target.measured_rate = true;
   if (deskew_difference(prev.velocity, target, prev.first, prev.last, kLever) <= config_.sensor.deskew_tolerance)
     return false;
-  const double mid = 0.5 * (prev.first + prev.last);
-  const auto correction = [&](double tau) { return target.at(tau) * prev.velocity.at(tau).inverse(); };
-  const auto time_at = [&](int column) {
-    const bool known = column >= 0 && column < static_cast<int>(prev.column_time.size()) &&
-                       std::isfinite(prev.column_time[static_cast<std::size_t>(column)]);
-    return known ? prev.column_time[static_cast<std::size_t>(column)] : mid;
-  };
-  for (LineFeature& line : prev_features_.h_lines) {  // along a row: its ends at their columns' times
-    const RigidTransform Ca = correction(time_at(line.first)), Cb = correction(time_at(line.last));
-    line.segment = {Ca.apply(line.segment.a), Cb.apply(line.segment.b)};
-    line.line = line.segment.line();
-    line.normal = Ca.R * line.normal;
-  }
-  for (LineFeature& line : prev_features_.v_lines) {  // along a column: one time
-    const RigidTransform C = correction(time_at(line.scan_index));
-    line.segment = line.segment.moved(C);
-    line.line = line.line.moved(C);
-    line.normal = C.R * line.normal;
-  }
-  const RigidTransform C = correction(mid);
-  for (PlaneFeature& plane : prev_features_.planes) {
-    plane.plane = plane.plane.moved(C);
-    plane.centroid = C.apply(plane.centroid);
-  }
+  move_features(&prev_features_, prev, target);
   if (config_.registration.window > 1) window_.replace_newest(prev_features_);
   prev_sweep_.velocity = target;
   return true;

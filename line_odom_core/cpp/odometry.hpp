@@ -198,13 +198,6 @@ class Odometry {
   const ScanFeatures& last_features() const { return prev_features_; }
 
  private:
-  // What correcting a scan's features for another velocity needs (sensor.deskew).
-  struct SweepTimes {
-    SweepVelocity velocity;            // it was deskewed at
-    double first = 0.0, last = 0.0;    // its earliest and latest time
-    std::vector<double> column_time;   // mean time of each column of the image its features were fitted on (NaN:
-                                       // none); a spinning sensor measures a column at one time
-  };
   RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
   // The velocity a scan at `stamp` is deskewed at: the prediction's (the guess's; turned by the rotation guess) over the
   // stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's turn);
