@@ -444,7 +444,7 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
 // Before its stamp a sweep moves at the motion being registered (T_prev_curr over the stamp interval), which the
 // registration knows better than the prediction it was deskewed at when the velocity changed (a turn reversed, a
 // vehicle braking); after the stamp it moves at the next frame's, which no registration knows yet. So the part of a
-// sweep before its stamp is compared (a sweep stamped at its start has none: iterating those changed nothing,
+// sweep before its stamp is compared (a sweep stamped at its start has none: iterating those did not help,
 // docs/RESULTS.md, Session 17), and both scans of the pair are corrected alike at the registered velocity (the previous
 // scan at its own registered motion fed each frame's error into the next, Session 17).
 int Odometry::deskew_at_registered(ScanFeatures* features, SweepTimes* sweep, double dt,
