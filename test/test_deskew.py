@@ -193,6 +193,23 @@ def test_the_processor_deskews_point_clouds_with_a_time_field(vlp16_sweeps):
     assert "fields[time]" in proc.last_error
 
 
+def test_the_processor_counts_the_sweeps_deskewed_again(vlp16_sweeps):
+    """Clouds stamped at their sweep's end (clock times, all before the stamp): most frames are corrected again at their
+    registered motion, counted in frames_deskewed_again; stamped at the start, none."""
+    frames = vlp16_sweeps[:10]
+    counts = {}
+    for end in (True, False):
+        proc = OdometryProcessor.from_parameters("vlp16")
+        for fr in frames:
+            stamp = 1.7e9 + fr.stamp + (0.1 if end else 0.0)
+            out = proc.process_pointcloud(_cloud(fr.data, stamp, fr.data.time.astype(np.float64) + 1.7e9 + fr.stamp))
+            assert out is not None
+        counts[end] = proc.counters["frames_deskewed_again"]
+        # (the second scan, used as measured until the first motion is registered, is then corrected at it)
+        assert proc.counters["frames_deskewed"] == len(frames) - (1 if end else 2)
+    assert counts[True] >= 5 and counts[False] == 0, counts  # measured 7 of 9
+
+
 def test_deskewing_with_a_gyro_rotation_guess(vlp16_sweeps):
     """The rotation guess turns the deskew velocity as it turns the prediction: both together on the distorted drive
     (the true rotation between the stamps as the gyro's) register as well as deskewing alone."""
