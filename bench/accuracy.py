@@ -6,6 +6,7 @@
     .venv/bin/python bench/accuracy.py --sim            # + the simulated 1 km street drive (KITTI devkit metric)
     .venv/bin/python bench/accuracy.py --only sim --sim-sensor vlp16   # the same street with a 16-beam LiDAR
     .venv/bin/python bench/accuracy.py --only sim --sim-distortion     # sweeps cast while moving: deskew on / off
+    .venv/bin/python bench/accuracy.py --only sim --sim-distortion --sim-stamp end --no-kiss   # stamped at the sweep's end
     .venv/bin/python bench/accuracy.py --seeds 8        # + line_odom's spread over RANSAC seeds 0-7
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
 
@@ -365,13 +366,22 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str
         print(f"{name:5} | {lo_text} | {k_text} | {goal}", flush=True)
 
 
-def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64") -> None:
+def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64",
+                      stamp_at: str = "start") -> None:
     """The simulated street drive with sweeps cast while the sensor moves (each column from the pose at its firing
     time, 10 m/s: up to 1 m across a sweep): line_odom given each point's time (sensor.deskew) and without it,
-    KISS-ICP with its deskew on (the same times, as fractions of the sweep) and off, on the same points."""
+    KISS-ICP with its deskew on (the same times, as fractions of the sweep) and off, on the same points.
+    `stamp_at` "end": each scan stamped at its sweep's end (times before the stamp, the pose there the truth; a driver
+    stamping the last packet), line_odom only; "start": as simulated."""
     from line_odom.metrics import kitti_errors
 
-    run, gt, preset = simulated_drive(frames, sensor, " with motion-distorted sweeps")
+    end = stamp_at == "end"
+    run, gt, preset = simulated_drive(frames, sensor, " with motion-distorted sweeps" +
+                                      (", stamped at the sweep's end" if end else ""))
+    period = 1.0 / run.sensor.rate_hz
+    if end:
+        kiss = False
+        gt = np.array([run.trajectory.pose_at(stamp + period) for stamp in run.trajectory.stamps])
     print(f"{'res':5} {'method':24} | {'t_err [%]':>10} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'r [deg]':>8} "
           f"{'ms':>6}", flush=True)
     for level in (levels if sensor == "hdl64" else (None,)):
@@ -392,8 +402,10 @@ def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), s
             for name, method in methods.items():
                 t0 = time.perf_counter()
                 if name.startswith("line_odom"):
-                    times = scan.time if name == "line_odom deskewed" else None
-                    poses[name].append(method.register_points(scan.points, frame.stamp, ring=ring, time=times).pose)
+                    times = (scan.time.astype(np.float64) - (period if end else 0.0)
+                             if name == "line_odom deskewed" else None)
+                    stamp = frame.stamp + (period if end else 0.0)
+                    poses[name].append(method.register_points(scan.points, stamp, ring=ring, time=times).pose)
                 else:
                     keep = (np.arange(len(scan.points)) if step == 1 else
                             np.flatnonzero((scan.ring % step == 0) & (scan.column % step == 0)))
@@ -455,6 +467,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sim-distortion", action="store_true",
                         help="the simulated drive with sweeps cast while the sensor moves: line_odom with and without "
                              "the points' times (sensor.deskew), KISS-ICP with deskew on and off")
+    parser.add_argument("--sim-stamp", choices=("start", "end"), default="start",
+                        help="with --sim-distortion: each scan stamped at its sweep's start (as simulated) or end "
+                             "(line_odom only)")
     parser.add_argument("--seeds", type=int, default=1,
                         help="also run line_odom with RANSAC seeds 1..N-1 and print the spread (nine frame pairs "
                              "per KITTI row: one sample can move a mean)")
@@ -491,8 +506,10 @@ def main(argv=None) -> int:
         if args.seeds > 1:
             print_seed_spread(rows, args.seeds, args, overrides)
     if args.sim:
-        run = run_sim_distorted if args.sim_distortion else run_sim
-        run(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor)
+        if args.sim_distortion:
+            run_sim_distorted(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor, args.sim_stamp)
+        else:
+            run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor)
     return 0
 
 

@@ -267,7 +267,8 @@ class OdometryProcessor:
         self._K: np.ndarray | None = None
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
-            frames_duplicate=0, resets=0, frames_deskewed=0, point_times_ignored=0, clouds_not_fitting_sensor=0)
+            frames_duplicate=0, resets=0, frames_deskewed=0, frames_deskewed_again=0, point_times_ignored=0,
+            clouds_not_fitting_sensor=0)
         self.guess = (MotionGuess(self.settings.base_frame, tolerance=self.settings.guess_tolerance,
                                   window=self.settings.guess_window) if self.settings.guess_enabled else None)
         if self.guess is not None:
@@ -668,6 +669,8 @@ class OdometryProcessor:
             if out.stats.get("deskewed"):
                 with self._count_lock:
                     self.counters["frames_deskewed"] += 1
+                    if out.stats.get("deskewed_again"):
+                        self.counters["frames_deskewed_again"] += 1
             out.reset_reason = reset_reason
             if self.guess is not None:
                 self._guess_prev = guess_pose
@@ -788,7 +791,7 @@ class OdometryProcessor:
         for key in (
                 "solver", "inliers", "degenerate", "held_directions", "candidates", "h_lines", "v_lines",
                 "registered_lines", "planes", "prediction", "unmeasured_directions", "window_scans", "turn_searched",
-                "turn_recovered", "deskewed", "previous_deskewed_again"):
+                "turn_recovered", "deskewed", "previous_deskewed_again", "deskewed_again"):
             if key in stats:
                 values[key] = stats[key]
         if "persistence" in stats:  # the share of the last motion the prediction carried, x y z rx ry rz

@@ -53,6 +53,10 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("sensor.deskew_tolerance", float, 0.005, "the previous scan is deskewed again at the current "
                 "velocity when the two corrections put a point 20 m away further apart than this (m), so both "
                 "scans of a registration are corrected alike", 0.0, 10.0),
+    ConfigEntry("sensor.deskew_iterations", int, 1, "once registered, a sweep whose registered velocity moves a point "
+                "20 m away further than deskew_tolerance from where the prediction's did is deskewed again at it "
+                "(its features and the previous scan's moved) and registered again from the estimate, at most "
+                "this many times; 0: at the prediction only", 0, 10),
     # --- line fitting on rows (H-lines) and columns (V-lines), paper §6.2 ---
     ConfigEntry("lines.min_points_h", int, 5, "inlier points an H-line (row) needs", 2, 100000),
     ConfigEntry("lines.min_points_v", int, 3, "inlier points a V-line (column) needs (few rows when "

@@ -81,6 +81,53 @@ def test_both_scans_of_a_pair_are_deskewed_alike(hdl64_sweeps):
     assert not any(res.stats["previous_deskewed_again"] for res in apart)
 
 
+def _drive_stamped_at_the_end(frames, overrides):
+    """Each sweep stamped at its end (a driver stamping its last packet): times before the stamp, the pose there (the
+    next frame's, as simulated) the truth. Returns the results and the rotation and translation errors from frame 3."""
+    odom = line_odom_core.Odometry(line_odom_core.load_config("vlp16", overrides))
+    period = frames[1].stamp - frames[0].stamp
+    results, errors = [], []
+    for k in range(len(frames) - 1):
+        scan = frames[k].data
+        res = odom.register_points(scan.points, frames[k].stamp + period, ring=scan.ring.astype(np.int32),
+                                   time=scan.time.astype(np.float64) - period)
+        degenerate.check_finite(res)
+        results.append(res)
+        if k >= 3:
+            errors.append(degenerate.frame_error(res.delta, np.linalg.inv(frames[k].pose) @ frames[k + 1].pose))
+    return results, np.array(errors)
+
+
+def test_a_sweep_stamped_at_its_end_is_deskewed_again_at_its_registered_motion(vlp16_sweeps):
+    """Before its stamp a sweep moves at the motion being registered: once registered, the scan (and the previous one,
+    alike) is corrected again at it and registered again. VLP-16, 46 frames, measured: rotation error per frame 0.0094
+    deg with sensor.deskew_iterations 1 (0.0116 with 0), translation 0.00149 m (0.00174)."""
+    again, again_errors = _drive_stamped_at_the_end(vlp16_sweeps, {"sensor.deskew_iterations": 1})
+    once, once_errors = _drive_stamped_at_the_end(vlp16_sweeps, {"sensor.deskew_iterations": 0})
+    assert again_errors[:, 1].mean() < 0.0105 < once_errors[:, 1].mean(), (again_errors.mean(0), once_errors.mean(0))
+    assert again_errors[:, 0].mean() < 0.0016 < once_errors[:, 0].mean(), (again_errors.mean(0), once_errors.mean(0))
+    assert sum(res.stats["deskewed_again"] > 0 for res in again) >= 30
+    assert not any(res.stats["deskewed_again"] for res in once)
+
+
+def test_a_sweep_stamped_at_its_start_is_not_deskewed_again(vlp16_sweeps):
+    """After its stamp a sweep moves at the next frame's motion, which the registration does not know: such a sweep
+    (times from its start, as simulated) is registered as with sensor.deskew_iterations 0, to the bit."""
+    frames = vlp16_sweeps[:12]
+    again = _drive(frames, "vlp16", {"sensor.deskew_iterations": 3})
+    once = _drive(frames, "vlp16", {"sensor.deskew_iterations": 0})
+    np.testing.assert_array_equal(np.array([r.pose for r in again]), np.array([r.pose for r in once]))
+    assert not any(res.stats["deskewed_again"] for res in again)
+
+
+@pytest.mark.parametrize("value", [-1, 11])
+def test_a_bad_deskew_iterations_is_refused_naming_it(value):
+    with pytest.raises(ValueError, match="sensor.deskew_iterations"):
+        line_odom_core.load_config("vlp16", {"sensor.deskew_iterations": value})
+    with pytest.raises(ValueError, match=r"sensor.deskew_iterations: expected 0 .* to 10, got " + str(value)):
+        line_odom_core._core.Odometry({"sensor.deskew_iterations": value})
+
+
 def test_an_organized_cloud_with_a_time_image_is_deskewed(vlp16_sweeps):
     """Measured 0.0011 m with the time image, 0.0033 m without."""
     frames = vlp16_sweeps[:30]
@@ -144,6 +191,23 @@ def test_the_processor_deskews_point_clouds_with_a_time_field(vlp16_sweeps):
         assert proc.process_pointcloud(_cloud(fr.data, 1.7e9 + fr.stamp, spread)) is not None
     assert proc.counters["point_times_ignored"] == len(frames) and proc.counters["frames_deskewed"] == 0
     assert "fields[time]" in proc.last_error
+
+
+def test_the_processor_counts_the_sweeps_deskewed_again(vlp16_sweeps):
+    """Clouds stamped at their sweep's end (clock times, all before the stamp): most frames are corrected again at their
+    registered motion, counted in frames_deskewed_again; stamped at the start, none."""
+    frames = vlp16_sweeps[:10]
+    counts = {}
+    for end in (True, False):
+        proc = OdometryProcessor.from_parameters("vlp16")
+        for fr in frames:
+            stamp = 1.7e9 + fr.stamp + (0.1 if end else 0.0)
+            out = proc.process_pointcloud(_cloud(fr.data, stamp, fr.data.time.astype(np.float64) + 1.7e9 + fr.stamp))
+            assert out is not None
+        counts[end] = proc.counters["frames_deskewed_again"]
+        # (the second scan, used as measured until the first motion is registered, is then corrected at it)
+        assert proc.counters["frames_deskewed"] == len(frames) - (1 if end else 2)
+    assert counts[True] >= 5 and counts[False] == 0, counts  # measured 7 of 9
 
 
 def test_deskewing_with_a_gyro_rotation_guess(vlp16_sweeps):

@@ -877,6 +877,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["window_scans"] = s.window_scans;
   d["deskewed"] = s.deskewed;
   d["previous_deskewed_again"] = s.previous_deskewed_again;
+  d["deskewed_again"] = s.deskewed_again;
   d["ms"] = ms;
   return d;
 }

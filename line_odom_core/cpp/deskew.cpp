@@ -59,6 +59,33 @@ void deskew_image(RangeImage* image, const double* time, const SweepVelocity& ve
   }
 }
 
+void move_features(ScanFeatures* features, const SweepTimes& sweep, const SweepVelocity& target) {
+  const double mid = 0.5 * (sweep.first + sweep.last);
+  const auto correction = [&](double tau) { return target.at(tau) * sweep.velocity.at(tau).inverse(); };
+  const auto time_at = [&](int column) {
+    const bool known = column >= 0 && column < static_cast<int>(sweep.column_time.size()) &&
+                       std::isfinite(sweep.column_time[static_cast<std::size_t>(column)]);
+    return known ? sweep.column_time[static_cast<std::size_t>(column)] : mid;
+  };
+  for (LineFeature& line : features->h_lines) {  // along a row: its ends at their columns' times
+    const RigidTransform Ca = correction(time_at(line.first)), Cb = correction(time_at(line.last));
+    line.segment = {Ca.apply(line.segment.a), Cb.apply(line.segment.b)};
+    line.line = line.segment.line();
+    line.normal = Ca.R * line.normal;
+  }
+  for (LineFeature& line : features->v_lines) {  // along a column: one time
+    const RigidTransform C = correction(time_at(line.scan_index));
+    line.segment = line.segment.moved(C);
+    line.line = line.line.moved(C);
+    line.normal = C.R * line.normal;
+  }
+  const RigidTransform C = correction(mid);
+  for (PlaneFeature& plane : features->planes) {
+    plane.plane = plane.plane.moved(C);
+    plane.centroid = C.apply(plane.centroid);
+  }
+}
+
 std::vector<double> column_times(const RangeImage& image, const double* time, int step) {
   const int columns = (image.cols + step - 1) / step;
   std::vector<double> sum(static_cast<std::size_t>(columns), 0.0), count(static_cast<std::size_t>(columns), 0.0);

@@ -23,9 +23,22 @@ struct SweepVelocity {
   RigidTransform at(double tau) const;
 };
 
+// What correcting a scan's features for another velocity needs.
+struct SweepTimes {
+  SweepVelocity velocity;           // it was deskewed at
+  double first = 0.0, last = 0.0;   // its earliest and latest time
+  std::vector<double> column_time;  // mean time of each column of the image its features were fitted on (NaN: none);
+                                    // a spinning sensor measures a column at one time
+};
+
 // Moves each valid cell's point, measured at time[source] (s from the stamp; source = the cell's source_index, or
 // the cell itself for an organized input), into the stamp's frame. The cells stay where the sweep measured them.
 void deskew_image(RangeImage* image, const double* time, const SweepVelocity& velocity);
+
+// Moves the features of a scan deskewed at sweep.velocity to where deskewing at `target` would have put them: each
+// line's ends by the difference at their columns' times, planes at mid-sweep (the difference is millimetres, a rigid
+// motion per column's time: fitting again gave the same errors, docs/RESULTS.md sessions 16 and 17).
+void move_features(ScanFeatures* features, const SweepTimes& sweep, const SweepVelocity& target);
 
 // Mean time of every `step`-th column of `image` (the columns of downsample(image, step)), NaN where it has no point;
 // time indexed as for deskew_image.

@@ -27,6 +27,7 @@ constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer th
                                                       // are one
 constexpr double kUnmeasuredCosine = 0.5;  // a direction not measured stays so while the held directions reach within
                                            // 60 deg of it (they wobble between x and pitch on KITTI 04 at 1/64)
+constexpr int kRoundsAgain = 2;  // candidates re-associated and refined after a sweep is deskewed again
 
 // The caller's motion guess: finite, with an orthonormal rotation of determinant +1.
 // A finite orthonormal matrix with determinant +1.
@@ -144,6 +145,9 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
     throw std::invalid_argument("registration.window: expected 1 to 10 scans, got " +
                                 std::to_string(config_.registration.window));
   window_ = FeatureWindow(config_.registration.window);
+  if (config_.sensor.deskew_iterations < 0 || config_.sensor.deskew_iterations > 10)
+    throw std::invalid_argument("sensor.deskew_iterations: expected 0 (deskewed at the prediction only) to 10, got " +
+                                std::to_string(config_.sensor.deskew_iterations));
   if (config_.threads < 0 || config_.threads > 256)
     throw std::invalid_argument("threads: expected 0 (one per hardware thread) to 256, got " +
                                 std::to_string(config_.threads));
@@ -266,10 +270,10 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   const bool previous_again = have_prev_sweep_ && deskew_previous_again(sweep.velocity);
   deskew_image(&image, time, sweep.velocity);
   const double deskew_ms = deskew_watch.ms();
-  FrameResult result = register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
+  FrameResult result = register_image(image, stamp, watch.ms(), step, guess, rotation_guess, &sweep);
   result.stats.deskewed = sweep.velocity.moving();
-  result.stats.previous_deskewed_again = previous_again;
-  result.stats.ms.deskew = deskew_ms;  // (part of organize, which register_range_image was given)
+  result.stats.previous_deskewed_again = result.stats.previous_deskewed_again || previous_again;
+  result.stats.ms.deskew += deskew_ms;  // (part of organize, which register_image was given)
   prev_sweep_ = std::move(sweep);
   have_prev_sweep_ = true;
   return result;
@@ -303,33 +307,84 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
   if (prev.velocity.measured_rate) target.rate = prev.velocity.rate, target.measured_rate = true;
   if (deskew_difference(prev.velocity, target, prev.first, prev.last, kLever) <= config_.sensor.deskew_tolerance)
     return false;
-  const double mid = 0.5 * (prev.first + prev.last);
-  const auto correction = [&](double tau) { return target.at(tau) * prev.velocity.at(tau).inverse(); };
-  const auto time_at = [&](int column) {
-    const bool known = column >= 0 && column < static_cast<int>(prev.column_time.size()) &&
-                       std::isfinite(prev.column_time[static_cast<std::size_t>(column)]);
-    return known ? prev.column_time[static_cast<std::size_t>(column)] : mid;
-  };
-  for (LineFeature& line : prev_features_.h_lines) {  // along a row: its ends at their columns' times
-    const RigidTransform Ca = correction(time_at(line.first)), Cb = correction(time_at(line.last));
-    line.segment = {Ca.apply(line.segment.a), Cb.apply(line.segment.b)};
-    line.line = line.segment.line();
-    line.normal = Ca.R * line.normal;
-  }
-  for (LineFeature& line : prev_features_.v_lines) {  // along a column: one time
-    const RigidTransform C = correction(time_at(line.scan_index));
-    line.segment = line.segment.moved(C);
-    line.line = line.line.moved(C);
-    line.normal = C.R * line.normal;
-  }
-  const RigidTransform C = correction(mid);
-  for (PlaneFeature& plane : prev_features_.planes) {
-    plane.plane = plane.plane.moved(C);
-    plane.centroid = C.apply(plane.centroid);
-  }
+  move_features(&prev_features_, prev, target);
   if (config_.registration.window > 1) window_.replace_newest(prev_features_);
   prev_sweep_.velocity = target;
   return true;
+}
+
+// Before its stamp a sweep moves at the motion being registered (T_prev_curr over the stamp interval), which the
+// registration knows better than the prediction it was deskewed at when the velocity changed (a turn reversed, a
+// vehicle braking); after the stamp it moves at the next frame's, which no registration knows yet. So the part of a
+// sweep before its stamp is compared (a sweep stamped at its start has none: iterating those did not help,
+// docs/RESULTS.md, Session 17), and both scans of the pair are corrected alike at the registered velocity (the previous
+// scan at its own registered motion fed each frame's error into the next, Session 17).
+int Odometry::deskew_at_registered(ScanFeatures* features, SweepTimes* sweep, double dt,
+                                   const RigidTransform& prediction, PassOutcome* outcome, FrameStats* st) {
+  constexpr double kLever = 20.0;  // as deskew_previous_again's
+  int again = 0;
+  if (!(std::isfinite(dt) && dt > 0.0) || !(sweep->first < 0.0)) return again;
+  while (again < config_.sensor.deskew_iterations && registered_in_full(*outcome)) {
+    SweepVelocity registered = SweepVelocity::over(outcome->best, dt);
+    if (sweep->velocity.measured_rate) registered.rate = sweep->velocity.rate, registered.measured_rate = true;
+    if (deskew_difference(sweep->velocity, registered, sweep->first, std::min(sweep->last, 0.0), kLever) <=
+        config_.sensor.deskew_tolerance)
+      break;
+    Stopwatch watch;
+    move_features(features, *sweep, registered);
+    sweep->velocity = registered;
+    if (have_prev_sweep_ && deskew_previous_again(registered)) st->previous_deskewed_again = true;
+    st->ms.deskew += watch.ms();
+    ++again;
+    const PassOutcome next = register_again(*features, prediction, outcome->best, *outcome, st);
+    if (!registered_in_full(next)) break;
+    *outcome = next;
+  }
+  return again;
+}
+
+PassOutcome Odometry::register_again(const ScanFeatures& cur, const RigidTransform& prediction,
+                                     const RigidTransform& start, const PassOutcome& first, FrameStats* st) const {
+  const ScanFeatures merged = st->window_scans > 1 ? window_.merged() : ScanFeatures{};
+  const ScanFeatures& prev = st->window_scans > 1 ? merged : prev_features_;
+  const RegistrationOptions& reg = config_.registration;
+  Stopwatch stage;
+  CandidateOptions copt = config_.candidates;
+  const double last_pass_scale = std::pow(reg.pass_distance_scale, reg.passes - 1);
+  copt.max_distance *= last_pass_scale;
+  copt.plane_max_distance *= last_pass_scale;
+  CandidateIndex index(prev);
+  PassOutcome out = first;
+  out.have = false;
+  RigidTransform T = start;
+  for (int round = 0; round < kRoundsAgain; ++round) {
+    stage = Stopwatch();
+    Correspondences corr;
+    CandidateStats cstats;
+    build_candidates(index, cur, T, copt, &corr, &cstats, pool_.get());
+    st->ms.candidates += stage.ms();
+    stage = Stopwatch();
+    const LinePairTable table(corr);
+    RefineResult refined;
+    int inliers = 0;
+    const bool refined_ok = refine_motion(corr, table, T, refine_options(), &refined) && refined.T.is_finite();
+    const RigidTransform deviation = prediction.inverse() * refined.T;
+    const bool ok = refined_ok && deviation.t.norm() <= reg.max_translation &&
+                    rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0 && !refined.degenerate &&
+                    refined.line_inliers >= reg.min_inliers && !too_few_pairs_meet(corr, table, refined.T, &inliers) &&
+                    unobserved_axes_at(table, refined.T) == 0;
+    st->ms.ransac += stage.ms();
+    if (!ok) return out;
+    T = refined.T;
+    copy_refinement_stats(refined, &out.stats);
+    out.stats.covariance = refined.covariance;
+    out.stats.best_solver = first.stats.best_solver;
+    st->candidates = cstats.line_pairs;
+    st->plane_candidates = cstats.plane_pairs;
+  }
+  out.best = T;
+  out.have = true;
+  return out;
 }
 
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
@@ -645,6 +700,11 @@ int Odometry::organize_step(double stamp, bool guessed) const {
 FrameResult Odometry::register_range_image(const RangeImage& image, double stamp, double organize_ms,
                                            int organized_step, const RigidTransform* guess,
                                            const Mat3* rotation_guess) {
+  return register_image(image, stamp, organize_ms, organized_step, guess, rotation_guess, nullptr);
+}
+
+FrameResult Odometry::register_image(const RangeImage& image, double stamp, double organize_ms, int organized_step,
+                                     const RigidTransform* guess, const Mat3* rotation_guess, SweepTimes* sweep) {
   check_guess(guess);
   check_rotation_guess(rotation_guess, guess);
   Stopwatch total;
@@ -745,6 +805,7 @@ FrameResult Odometry::register_range_image(const RangeImage& image, double stamp
     // (kept with a rotation guess: it starts only where the registration failed or lost support, never on the
     // yaw-flip drive with a gyro 5 deg off; a gyro turned the wrong way, 24 frames: 8.4 -> 0.23 deg mean, NODE.md)
     if (!first_motion_frame) st.turn_recovered = search_turn(prev_features_, features, prediction, &outcome, &st);
+    if (sweep != nullptr) st.deskewed_again = deskew_at_registered(&features, sweep, dt, prediction, &outcome, &st);
     const RigidTransform& best = outcome.best;
     const MotionStats& best_stats = outcome.stats;
     const bool have = outcome.have;
@@ -898,6 +959,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("sensor.max_range", c.sensor.limits.max_range);
   visit("sensor.deskew", c.sensor.deskew);
   visit("sensor.deskew_tolerance", c.sensor.deskew_tolerance);
+  visit("sensor.deskew_iterations", c.sensor.deskew_iterations);
   // FEATURE_SETTINGS
   visit("candidates.max_distance", c.candidates.max_distance);
   visit("candidates.min_line_angle_deg", c.candidates.min_line_angle_deg);

@@ -69,6 +69,9 @@ struct SensorOptions {
   RangeLimits limits;
   bool deskew = true;              // points with times: moved into the frame at the stamp (deskew.hpp)
   double deskew_tolerance = 0.005;  // m: the previous scan is deskewed again when the velocity changed by more
+  int deskew_iterations = 1;        // a sweep with times before its stamp (stamped at its end) is deskewed again at the
+                                    // motion registered for it, when that differs by more than deskew_tolerance, and
+                                    // registered again, at most this many times; 0: at the prediction only
 };
 
 // The SensorModel the options describe; throws std::invalid_argument when they are inconsistent.
@@ -89,7 +92,8 @@ struct OdometryConfig {
 struct StageMilliseconds {
   double organize = 0, downsample = 0, features = 0, candidates = 0, ransac = 0, total = 0;
   double lines = 0, normals = 0, planes = 0;  // parts of features
-  double deskew = 0;                           // part of organize: correcting both scans' sweeps
+  double deskew = 0;  // correcting both scans' sweeps (before the registration: part of organize; after it, at the
+                      // registered motion: besides the stages)
 };
 
 struct FrameStats {
@@ -124,6 +128,8 @@ struct FrameStats {
   bool deskewed = false;        // the points had times and were moved to the stamp at the predicted velocity
   bool previous_deskewed_again = false;  // ... and the previous scan, deskewed at another velocity, was again at this
                                          // one (its features moved), so that both scans are corrected alike
+  int deskewed_again = 0;  // times the sweep was deskewed again at the motion registered for it, and registered again
+                           // (sensor.deskew_iterations)
   StageMilliseconds ms;
 };
 
@@ -163,7 +169,7 @@ class Odometry {
   // Unorganized points: xyz at data[i * stride + 0..2]; `ring` (nullable) gives the beam of each point.
   // `time` (nullable): when each point was measured, in seconds from `stamp`; with sensor.deskew the sweep is
   // corrected for the motion during it (deskew.hpp) at the predicted velocity, and so is the previous scan when it was
-  // corrected at another one. Throws std::invalid_argument on a non-finite time. `sweep_rate` (nullable, with `time`):
+  // corrected at another one; points before the stamp once more at the registered motion (sensor.deskew_iterations). Throws std::invalid_argument on a non-finite time. `sweep_rate` (nullable, with `time`):
   // the sensor's angular velocity during this sweep (rad/s, a gyro's): the turn of the correction, this scan's own.
   template <typename Scalar>
   FrameResult register_points(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
@@ -199,13 +205,6 @@ class Odometry {
   const ScanFeatures& last_features() const { return prev_features_; }
 
  private:
-  // What correcting a scan's features for another velocity needs (sensor.deskew).
-  struct SweepTimes {
-    SweepVelocity velocity;            // it was deskewed at
-    double first = 0.0, last = 0.0;    // its earliest and latest time
-    std::vector<double> column_time;   // mean time of each column of the image its features were fitted on (NaN:
-                                       // none); a spinning sensor measures a column at one time
-  };
   RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
   // The velocity a scan at `stamp` is deskewed at: the prediction's (the guess's; turned by the rotation guess) over the
   // stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's turn);
@@ -216,6 +215,20 @@ class Odometry {
   // `velocity` puts them: moves its features to where `velocity` would have put them (each line's ends by the
   // difference at their columns' times, planes at mid-sweep). True when it did.
   bool deskew_previous_again(const SweepVelocity& velocity);
+  // sensor.deskew_iterations: while the velocity of the registered motion (over `dt`) puts the sweep's points before its
+  // stamp more than sensor.deskew_tolerance from where sweep->velocity put them, moves the scan's features (and the
+  // previous scan's) to it and registers again from the estimate. Returns how many times it did.
+  int deskew_at_registered(ScanFeatures* features, SweepTimes* sweep, double dt, const RigidTransform& prediction,
+                           PassOutcome* outcome, FrameStats* st);
+  // The registration of `cur` again from `start` (a registered estimate): against the scans it was registered on
+  // (st->window_scans), the candidates re-associated and refined, no RANSAC; `have` only when it observes every
+  // direction within registration.max_translation / max_rotation_deg of `prediction`.
+  PassOutcome register_again(const ScanFeatures& cur, const RigidTransform& prediction, const RigidTransform& start,
+                             const PassOutcome& first, FrameStats* st) const;
+  // register_range_image; `sweep` (nullable): the image's sweep times, deskewed at sweep->velocity (updated by
+  // deskew_at_registered).
+  FrameResult register_image(const RangeImage& image, double stamp, double organize_ms, int organized_step,
+                             const RigidTransform* guess, const Mat3* rotation_guess, SweepTimes* sweep);
   template <typename Scalar>
   FrameResult register_sweep(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
                              int rows, int cols, double stamp, const RigidTransform* guess,
