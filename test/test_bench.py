@@ -1,0 +1,47 @@
+"""The benchmarks still run and print their tables (bench/ is not imported by the package): a short TUM run of
+bench/accuracy.py with its ground-truth clock table, the paired-difference table on synthetic rows (KISS-ICP is a
+benchmark-only dependency), and bench/gt_consistency.py's constancy table on KITTI 07."""
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+import accuracy  # noqa: E402
+
+
+def _run(*args: str) -> str:
+    done = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_accuracy_prints_the_tum_rows_and_the_clock_table():
+    out = _run("bench/accuracy.py", "--only", "tum", "--tum-frames", "12", "--tum-levels", "10", "--no-kiss")
+    assert "tum   fr1/xyz 1/100  12 |" in out and "<= 5.0 mm, 0.52 deg:" in out
+    clock = out[out.index("TUM with the ground truth at the depth stamp + offset"):].splitlines()
+    offsets = [line.split()[1] for line in clock[2:] if line.startswith("1/100")]
+    assert offsets == ["0", "-20", "-30", "-40", "-50", "-60"]
+
+
+def test_paired_table_says_which_differences_the_frames_resolve(capsys):
+    rng = np.random.default_rng(0)
+    common = rng.uniform(0.01, 0.03, 9)
+    rows = [accuracy.Row("kitti", seq, 1, 10, (0, 0, 0, 0), (0, 0, 0, 0), 1.0, 1.0, 0, 0,
+                         (common + shift, common), (common, common + rng.normal(0, 0.005, 9)))
+            for seq, shift in (("07", -0.01), ("04", 0.0))]
+    accuracy.print_paired(rows)
+    out = capsys.readouterr().out.splitlines()
+    assert out[-2].startswith("kitti 07") and "t: line_odom lower by 0.0100 m" in out[-2]
+    assert out[-1].startswith("kitti 04") and "t: not resolved" in out[-1] and "r: not resolved" in out[-1]
+
+
+def test_gt_consistency_prints_each_motions_spread():
+    out = _run("bench/gt_consistency.py", "--no-kiss", "--kitti", "07")
+    table = out[out.index("Each motion's spread"):].splitlines()
+    row = next(line for line in table if line.startswith("07"))
+    gt_t, gt_r = (float(v) for v in row.split("|")[1].split())
+    assert 0.01 < gt_t < 0.05 and 0.2 < gt_r < 0.4  # 07's ground truth: the car starting, 0.026 m / 0.284 deg
