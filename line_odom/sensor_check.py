@@ -12,7 +12,9 @@ from typing import Any, Callable, Mapping
 
 LIDAR_PRESETS = ("kitti_hdl64", "vlp16", "ouster_os128")
 MAX_OUTSIDE_SHARE = 0.10  # a fitting model leaves <= 3 % outside (the simulated HDL-64E in KITTI's measured table)
-MIN_FILLED_SHARE = 0.6    # ... and fills >= 94 % of its rows (a 64-beam cloud in the 128-row OS-128 model: 45-58 %)
+MIN_FILLED_SHARE = 0.6    # ... and fills >= 94 % of the rows between its top and bottom filled rows (open sky or a
+                          # lone ground leaves rows above or below empty, not between; a VLP-16 cloud in the HDL-64E
+                          # model fills 9 of 41)
 MIN_POINTS = 100          # fewer valid points tell nothing
 
 
@@ -29,10 +31,10 @@ def problem(fit: Mapping[str, Any]) -> str | None:
     outside = fit["outside_rows"] / fit["points"]
     if outside > MAX_OUTSIDE_SHARE:
         return f"{outside:.0%} of the cloud's points lie outside the beams of {model}; {spans}"
-    if fit["filled_rows"] < MIN_FILLED_SHARE * fit["rows"]:
+    if fit["filled_rows"] < MIN_FILLED_SHARE * fit["band_rows"]:
         rows_from = "its ring field" if fit["row_method"] == "ring" else "elevation"
-        return (f"the cloud fills {fit['filled_rows']} of the {fit['rows']} rows of {model}, its rows by {rows_from}; "
-                f"{spans}")
+        return (f"the cloud fills {fit['filled_rows']} of the {fit['band_rows']} rows between its top and bottom "
+                f"rows in {model}, its rows by {rows_from}; {spans}")
     return None
 
 

@@ -1067,6 +1067,7 @@ py::dict sensor_fit(const line_odom::Odometry& o, const py::array& xyz,
   d["points"] = fit.points;
   d["outside_rows"] = fit.outside_rows;
   d["filled_rows"] = fit.filled_rows;
+  d["band_rows"] = fit.band_rows;
   d["ring_rows"] = fit.ring_rows;
   d["cloud_high_deg"] = fit.cloud_high_deg;
   d["cloud_low_deg"] = fit.cloud_low_deg;

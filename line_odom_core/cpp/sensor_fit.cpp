@@ -50,11 +50,16 @@ SensorFit fit(const T* data, std::size_t count, std::size_t stride, const std::i
   out.row_method = stats.row_method;
   out.outside_rows = stats.outside_rows;
   const int least = std::max(1, image.cols / 100);
+  int first = -1, last = -1;
   for (int r = 0; r < image.rows; ++r) {
     int valid = 0;
     for (int c = 0; c < image.cols; ++c) valid += image.is_valid(r, c) ? 1 : 0;
-    out.filled_rows += valid >= least ? 1 : 0;
+    if (valid < least) continue;
+    ++out.filled_rows;
+    if (first < 0) first = r;
+    last = r;
   }
+  out.band_rows = first < 0 ? 0 : last - first + 1;
   return out;
 }
 

@@ -20,6 +20,7 @@ struct SensorFit {
   std::size_t points = 0;          // finite, non-zero points within the range limits
   std::size_t outside_rows = 0;    // of those, outside the model's beams (rows by elevation)
   int filled_rows = 0;             // rows holding a point in at least 1 % of the model's columns
+  int band_rows = 0;               // rows from the first filled row to the last (what sky or a lone ground leaves)
   long long ring_rows = 0;         // 1 + the largest ring value (0: no ring field)
   double cloud_high_deg = 0.0;     // the cloud's elevations: 99.5th and 0.5th percentile of its points
   double cloud_low_deg = 0.0;
