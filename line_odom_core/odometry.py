@@ -217,7 +217,8 @@ class Odometry:
     def sensor_fit(self, xyz: np.ndarray, *, ring: np.ndarray | None = None) -> dict:
         """How an unorganized cloud fits the configured sensor model (every row and column): the model (name, rows,
         elevations), how its rows were found, the valid points, those outside the model's beams, the rows holding
-        points in >= 1 % of the columns, 1 + the largest ring value, the cloud's 0.5 / 99.5 % elevations (deg)."""
+        points in >= 1 % of the columns and the rows from the first of those to the last, 1 + the largest ring value,
+        the cloud's 0.5 / 99.5 % elevations (deg). line_odom.sensor_check reads it."""
         pts = _float_array("xyz", xyz, 2, 3, "an (N, 3) array of points")
         return self._engine.sensor_fit(pts, _ring(ring, pts.shape[0]))
 
