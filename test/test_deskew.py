@@ -292,9 +292,12 @@ def test_an_unusable_sweep_rate_is_refused_naming_it(rate, time, match):
         odom.register_points(np.random.default_rng(0).normal(size=(10, 3)) * 5, 0.0, time=time, sweep_rate=rate)
 
 
-def test_the_processor_gives_the_gyro_over_each_sweep(turning_sweeps):
+@pytest.mark.parametrize("stamped_at", ["start", "end"])
+def test_the_processor_gives_the_gyro_over_each_sweep(turning_sweeps, stamped_at):
     """Through the processor with a 200 Hz gyro on the reversing turns (noise and a bias it learns): each sweep's rate
-    from the samples over its times. Measured 0.030 deg mean rotation error (max 0.08); without the IMU 2.34 (max 17.6)."""
+    from the samples over its times. Measured 0.030 deg mean rotation error (max 0.08); without the IMU 2.34 (max 17.6).
+    Each cloud stamped at its sweep's end instead (a Velodyne driver: times before the stamp, the truth between the
+    sweeps' ends): 0.034 deg (max 0.11) with the IMU, 4.72 (max 20.0) without."""
     from line_odom.sim.gyro import gyro_samples
     from test_imu_rotation import _imu_msg
 
@@ -314,9 +317,13 @@ def test_the_processor_gives_the_gyro_over_each_sweep(turning_sweeps):
                 if imu:
                     proc.add_imu(_imu_msg(stamp_ns, what, "lidar"))
                 continue
-            outs.append(proc.process_pointcloud(_cloud(scans[what], stamps[what], scans[what].time.astype(np.float64))))
+            shift = 0.1 if stamped_at == "end" else 0.0
+            outs.append(proc.process_pointcloud(_cloud(scans[what], stamps[what] + shift,
+                                                       scans[what].time.astype(np.float64) - shift)))
+        at = 1 if stamped_at == "end" else 0  # the pose at each cloud's stamp
         errors = [degenerate.frame_error(np.linalg.inv(outs[k - 1].T_odom_base) @ outs[k].T_odom_base,
-                                         np.linalg.inv(poses[k - 1]) @ poses[k])[1] for k in range(1, FLIP_FRAMES)]
+                                         np.linalg.inv(poses[k - 1 + at]) @ poses[k + at])[1]
+                  for k in range(1, FLIP_FRAMES)]
         results[imu] = (np.mean(errors), proc.counters)
     assert results[True][0] < 0.2, results[True]
     assert results[True][1]["sweeps_without_gyro"] == 0 and results[True][1]["frames_deskewed"] == FLIP_FRAMES
