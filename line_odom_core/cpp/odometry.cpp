@@ -349,10 +349,7 @@ PassOutcome Odometry::register_again(const ScanFeatures& cur, const RigidTransfo
   const ScanFeatures& prev = st->window_scans > 1 ? merged : prev_features_;
   const RegistrationOptions& reg = config_.registration;
   Stopwatch stage;
-  CandidateOptions copt = config_.candidates;
-  const double last_pass_scale = std::pow(reg.pass_distance_scale, reg.passes - 1);
-  copt.max_distance *= last_pass_scale;
-  copt.plane_max_distance *= last_pass_scale;
+  const CandidateOptions copt = last_pass_candidates();
   CandidateIndex index(prev);
   PassOutcome out = first;
   out.have = false;
@@ -420,6 +417,15 @@ template std::vector<Vec3> Odometry::downsampled_points(const float*, std::size_
 template std::vector<Vec3> Odometry::downsampled_points(const double*, std::size_t, std::size_t,
                                                         const std::int32_t*) const;
 
+CandidateOptions Odometry::last_pass_candidates() const {
+  const RegistrationOptions& reg = config_.registration;
+  CandidateOptions copt = config_.candidates;
+  const double last_pass_scale = std::pow(reg.pass_distance_scale, reg.passes - 1);
+  copt.max_distance *= last_pass_scale;
+  copt.plane_max_distance *= last_pass_scale;
+  return copt;
+}
+
 RefineOptions Odometry::refine_options() const {
   RefineOptions ropt;
   ropt.iterations = config_.ransac.refine_iterations;
@@ -483,11 +489,7 @@ int Odometry::unobserved_axes_at(const LinePairTable& table, const RigidTransfor
 bool Odometry::observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
                                         FrameStats* st) const {
   Stopwatch stage;
-  const RegistrationOptions& reg = config_.registration;
-  CandidateOptions copt = config_.candidates;
-  const double last_pass_scale = std::pow(reg.pass_distance_scale, reg.passes - 1);
-  copt.max_distance *= last_pass_scale;
-  copt.plane_max_distance *= last_pass_scale;
+  const CandidateOptions copt = last_pass_candidates();
   Correspondences corr;
   CandidateStats cstats;
   CandidateIndex index(prev);

@@ -249,6 +249,7 @@ class Odometry {
   bool too_few_pairs_meet(const Correspondences& corr, const LinePairTable& table, const RigidTransform& T,
                           int* inliers) const;
   int unobserved_axes_at(const LinePairTable& table, const RigidTransform& T) const;
+  CandidateOptions last_pass_candidates() const;  // the candidates of the last pass: its distance
   RefineOptions refine_options() const;
   bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                              const Mat6* covariance, const RigidTransform& prediction, RigidTransform* peak) const;
