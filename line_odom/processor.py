@@ -265,6 +265,7 @@ class OdometryProcessor:
         self._count_lock = threading.Lock()
         self._guess_lock = threading.Lock()
         self._K: np.ndarray | None = None
+        self._K_shape: tuple[int, int] | None = None  # (height, width) the CameraInfo states, None when it states none
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
             frames_duplicate=0, resets=0, frames_deskewed=0, frames_deskewed_again=0, point_times_ignored=0,
@@ -537,6 +538,7 @@ class OdometryProcessor:
             self._reject("frames_malformed", str(err))
             return False
         self._K = K
+        self._K_shape = (int(msg.height), int(msg.width)) if int(msg.width) and int(msg.height) else None
         return True
 
     def check_depth_image(self, msg) -> bool:
@@ -619,6 +621,11 @@ class OdometryProcessor:
         K = self._K
         if K is None:
             self._reject("frames_dropped", "no valid CameraInfo received yet for the depth image")
+            return None
+        if self._K_shape is not None and self._K_shape != depth.shape:
+            self._reject("frames_malformed", f"camera_info.width/height: the CameraInfo is {self._K_shape[1]} x "
+                         f"{self._K_shape[0]} but the depth image is {depth.shape[1]} x {depth.shape[0]} (is "
+                         f"depth/camera_info the depth image's own?)")
             return None
         stamp_ns = convert.stamp_to_ns(image.header.stamp)
         self._await_gyro(stamp_ns)
