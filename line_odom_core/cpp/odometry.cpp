@@ -348,36 +348,27 @@ PassOutcome Odometry::register_again(const ScanFeatures& cur, const RigidTransfo
   const ScanFeatures merged = st->window_scans > 1 ? window_.merged() : ScanFeatures{};
   const ScanFeatures& prev = st->window_scans > 1 ? merged : prev_features_;
   const RegistrationOptions& reg = config_.registration;
-  Stopwatch stage;
-  const CandidateOptions copt = last_pass_candidates();
   CandidateIndex index(prev);
   PassOutcome out = first;
   out.have = false;
   RigidTransform T = start;
   for (int round = 0; round < kRoundsAgain; ++round) {
-    stage = Stopwatch();
-    Correspondences corr;
-    CandidateStats cstats;
-    build_candidates(index, cur, T, copt, &corr, &cstats, pool_.get());
-    st->ms.candidates += stage.ms();
-    stage = Stopwatch();
-    const LinePairTable table(corr);
-    RefineResult refined;
+    const LastPassFit fit = refit_last_pass(index, cur, T, st);
+    const RefineResult& refined = fit.refined;
+    Stopwatch checks;
     int inliers = 0;
-    const bool refined_ok = refine_motion(corr, table, T, refine_options(), &refined) && refined.T.is_finite();
-    const RigidTransform deviation = prediction.inverse() * refined.T;
-    const bool ok = refined_ok && deviation.t.norm() <= reg.max_translation &&
-                    rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0 && !refined.degenerate &&
-                    refined.line_inliers >= reg.min_inliers && !too_few_pairs_meet(corr, table, refined.T, &inliers) &&
-                    unobserved_axes_at(table, refined.T) == 0;
-    st->ms.ransac += stage.ms();
+    const bool ok = fit.converged && within_reach(prediction, refined.T) && !refined.degenerate &&
+                    refined.line_inliers >= reg.min_inliers &&
+                    !too_few_pairs_meet(fit.corr, fit.table, refined.T, &inliers) &&
+                    unobserved_axes_at(fit.table, refined.T) == 0;
+    st->ms.ransac += checks.ms();
     if (!ok) return out;
     T = refined.T;
     copy_refinement_stats(refined, &out.stats);
     out.stats.covariance = refined.covariance;
     out.stats.best_solver = first.stats.best_solver;
-    st->candidates = cstats.line_pairs;
-    st->plane_candidates = cstats.plane_pairs;
+    st->candidates = fit.stats.line_pairs;
+    st->plane_candidates = fit.stats.plane_pairs;
   }
   out.best = T;
   out.have = true;
@@ -488,21 +479,34 @@ int Odometry::unobserved_axes_at(const LinePairTable& table, const RigidTransfor
 // direction of T: a well-conditioned refinement, enough of them meeting, no axis a push along which keeps them.
 bool Odometry::observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
                                         FrameStats* st) const {
-  Stopwatch stage;
-  const CandidateOptions copt = last_pass_candidates();
-  Correspondences corr;
-  CandidateStats cstats;
   CandidateIndex index(prev);
-  build_candidates(index, cur, T, copt, &corr, &cstats, pool_.get());
+  const LastPassFit fit = refit_last_pass(index, cur, T, st);
+  Stopwatch checks;
+  int inliers = 0;
+  const bool observed = fit.converged && !fit.refined.degenerate &&
+                        !too_few_pairs_meet(fit.corr, fit.table, T, &inliers) && unobserved_axes_at(fit.table, T) == 0;
+  st->ms.ransac += checks.ms();
+  return observed;
+}
+
+Odometry::LastPassFit Odometry::refit_last_pass(CandidateIndex& index, const ScanFeatures& cur,
+                                                const RigidTransform& T, FrameStats* st) const {
+  LastPassFit fit;
+  Stopwatch stage;
+  build_candidates(index, cur, T, last_pass_candidates(), &fit.corr, &fit.stats, pool_.get());
   st->ms.candidates += stage.ms();
   stage = Stopwatch();
-  const LinePairTable table(corr);
-  RefineResult refined;
-  int inliers = 0;
-  const bool observed = refine_motion(corr, table, T, refine_options(), &refined) && !refined.degenerate &&
-                        !too_few_pairs_meet(corr, table, T, &inliers) && unobserved_axes_at(table, T) == 0;
+  fit.table = LinePairTable(fit.corr);
+  fit.converged = refine_motion(fit.corr, fit.table, T, refine_options(), &fit.refined);
   st->ms.ransac += stage.ms();
-  return observed;
+  return fit;
+}
+
+bool Odometry::within_reach(const RigidTransform& prediction, const RigidTransform& T) const {
+  if (!T.is_finite()) return false;
+  const RigidTransform deviation = prediction.inverse() * T;
+  return deviation.t.norm() <= config_.registration.max_translation &&
+         rotation_angle(deviation.R) <= config_.registration.max_rotation_deg * kPi / 180.0;
 }
 
 PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeatures& cur,
@@ -520,12 +524,6 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   CandidateStats cstats;
   std::string failure;
   const RefineOptions ropt = refine_options();
-  auto sane = [&](const RigidTransform& T) {
-    if (!T.is_finite()) return false;
-    const RigidTransform deviation = prediction.inverse() * T;
-    return deviation.t.norm() <= reg.max_translation &&
-           rotation_angle(deviation.R) <= reg.max_rotation_deg * kPi / 180.0;
-  };
   std::unique_ptr<CandidateIndex> prev_index;  // frame a never moves: indexed once for all passes
   RefineResult last_refined;  // the refined guess of the last pass, when it converged
   bool last_refine_converged = false;
@@ -547,7 +545,8 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     // and whichever has the larger weighted inlier count on the same candidates is kept (paper §6.3).
     // An ill-conditioned refined guess still competes: a sample must out-support it to win, or the pass fails.
     RefineResult refined;
-    const bool refine_converged = refine_motion(corr, table, best, ropt, &refined) && sane(refined.T);
+    const bool refine_converged =
+        refine_motion(corr, table, best, ropt, &refined) && within_reach(prediction, refined.T);
     const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
     last_refined = refined;
     last_refine_converged = refine_converged;
@@ -557,7 +556,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
     // wrong shift that most pairs support: it must not cut the sampling short, so it only competes afterwards.
     const bool guessed = limit_pairs || have;
     bool ok = estimate_motion(corr, best, mopt, &estimate, &ms, refine_converged && guessed ? &refined.T : nullptr) &&
-              sane(estimate) && ms.inliers >= reg.min_inliers;
+              within_reach(prediction, estimate) && ms.inliers >= reg.min_inliers;
     st->iterations += ms.iterations;
     const double thr = config_.ransac.inlier_threshold;
     int sample_pairs = 0, guess_pairs = 0;
@@ -649,7 +648,7 @@ PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeat
   for (int round = 0; partial_from && round < 2; ++round) {
     RefineResult partial;
     if (!refine_motion_partial(corr, table, *partial_from, prediction, axes, lock_weak, ropt, &partial) ||
-        !sane(partial.T) || partial.degenerate || partial.line_inliers < reg.min_inliers ||
+        !within_reach(prediction, partial.T) || partial.degenerate || partial.line_inliers < reg.min_inliers ||
         too_few_meet(partial.T, &inliers))
       break;
     // An unobserved axis the held directions already (nearly) contain is held; another one is held too, once.

@@ -250,6 +250,18 @@ class Odometry {
                           int* inliers) const;
   int unobserved_axes_at(const LinePairTable& table, const RigidTransform& T) const;
   CandidateOptions last_pass_candidates() const;  // the candidates of the last pass: its distance
+  // The last pass's candidate pairs of `index` and `cur` under T, refined from T (their times into st).
+  struct LastPassFit {
+    Correspondences corr;
+    CandidateStats stats;
+    LinePairTable table;
+    RefineResult refined;
+    bool converged = false;  // refine_motion's answer
+  };
+  LastPassFit refit_last_pass(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
+                              FrameStats* st) const;
+  // Finite and within registration.max_translation / max_rotation_deg of `prediction`.
+  bool within_reach(const RigidTransform& prediction, const RigidTransform& T) const;
   RefineOptions refine_options() const;
   bool weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                              const Mat6* covariance, const RigidTransform& prediction, RigidTransform* peak) const;
