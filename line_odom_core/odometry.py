@@ -151,16 +151,16 @@ class Odometry:
         """Unorganized points (N, 3) in metres (NaN/inf = dropped); `ring` (N,) integer beam index per point, or
         None to organize by elevation with the configured sensor model.
 
-        time (register_points, register_organized): when each point was measured, in seconds from `stamp`
-        (negative: before it), or None. With `sensor.deskew` (on in the LiDAR presets) the sweep is corrected for
-        the sensor's motion during it at the predicted velocity, into the sensor frame at `stamp`; the previous scan
-        is corrected again when it was corrected at a velocity that differs by more than `sensor.deskew_tolerance`,
-        so that both scans of a registration are corrected alike (stats["deskewed"],
-        stats["previous_deskewed_again"]). Points before the stamp (a sweep stamped at its end) moved at this frame's
-        motion: once registered, both scans are corrected again at the registered velocity and the frame registered
-        again from the estimate, up to `sensor.deskew_iterations` times (stats["deskewed_again"]). sweep_rate (with time): the sensor's angular velocity during this sweep
-        (3,) rad/s in its axes, a gyro's over the sweep's times: the correction turns at it (this scan's own, kept when
-        the scan is corrected again) instead of at the predicted rotation.
+        time (register_points, register_organized): when each point was measured, in seconds from `stamp` (negative:
+        before it), or None. With `sensor.deskew` (on in the LiDAR presets) the sweep is corrected for the sensor's
+        motion during it at the predicted velocity, into the sensor frame at `stamp`; the previous scan is corrected
+        again when it was corrected at a velocity that differs by more than `sensor.deskew_tolerance`, so that both
+        scans of a registration are corrected alike (stats["deskewed"], stats["previous_deskewed_again"]). Points before
+        the stamp (a sweep stamped at its end) moved at this frame's motion: once registered, both scans are corrected
+        again at the registered velocity and the frame registered again from the estimate, up to
+        `sensor.deskew_iterations` times (stats["deskewed_again"]). sweep_rate (with time): the sensor's angular
+        velocity during this sweep (3,) rad/s in its axes, a gyro's over the sweep's times: the correction turns at it
+        (this scan's own, kept when the scan is corrected again) instead of at the predicted rotation.
 
         guess (every register_* method): the sensor's motion since the previous frame from another source (wheel
         odometry, an IMU), T_prev_curr (4x4) in the sensor frame, or None. It replaces the constant-velocity

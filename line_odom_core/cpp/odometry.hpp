@@ -169,8 +169,10 @@ class Odometry {
   // Unorganized points: xyz at data[i * stride + 0..2]; `ring` (nullable) gives the beam of each point.
   // `time` (nullable): when each point was measured, in seconds from `stamp`; with sensor.deskew the sweep is
   // corrected for the motion during it (deskew.hpp) at the predicted velocity, and so is the previous scan when it was
-  // corrected at another one; points before the stamp once more at the registered motion (sensor.deskew_iterations). Throws std::invalid_argument on a non-finite time. `sweep_rate` (nullable, with `time`):
-  // the sensor's angular velocity during this sweep (rad/s, a gyro's): the turn of the correction, this scan's own.
+  // corrected at another one; points before the stamp once more at the registered motion
+  // (sensor.deskew_iterations). Throws std::invalid_argument on a non-finite time. `sweep_rate` (nullable, with
+  // `time`): the sensor's angular velocity during this sweep (rad/s, a gyro's): the turn of the correction, this
+  // scan's own.
   template <typename Scalar>
   FrameResult register_points(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
                               double stamp, const RigidTransform* guess = nullptr,
@@ -206,17 +208,17 @@ class Odometry {
 
  private:
   RigidTransform predict(double stamp, Vec6* persistence) const;  // and the per-axis share it carried
-  // The velocity a scan at `stamp` is deskewed at: the prediction's (the guess's; turned by the rotation guess) over the
-  // stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's turn);
-  // turning at `sweep_rate` when given.
+  // The velocity a scan at `stamp` is deskewed at: the prediction's (the guess's; turned by the rotation guess) over
+  // the stamp interval; standing still on the first frame and while there is no velocity (but the rotation guess's
+  // turn); turning at `sweep_rate` when given.
   SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess,
                                const Vec3* sweep_rate) const;
   // When the previous scan was deskewed at a velocity that puts its points more than sensor.deskew_tolerance from where
   // `velocity` puts them: moves its features to where `velocity` would have put them (each line's ends by the
   // difference at their columns' times, planes at mid-sweep). True when it did.
   bool deskew_previous_again(const SweepVelocity& velocity);
-  // sensor.deskew_iterations: while the velocity of the registered motion (over `dt`) puts the sweep's points before its
-  // stamp more than sensor.deskew_tolerance from where sweep->velocity put them, moves the scan's features (and the
+  // sensor.deskew_iterations: while the velocity of the registered motion (over `dt`) puts the sweep's points before
+  // its stamp more than sensor.deskew_tolerance from where sweep->velocity put them, moves the scan's features (and the
   // previous scan's) to it and registers again from the estimate. Returns how many times it did.
   int deskew_at_registered(ScanFeatures* features, SweepTimes* sweep, double dt, const RigidTransform& prediction,
                            PassOutcome* outcome, FrameStats* st);
