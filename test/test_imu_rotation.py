@@ -18,6 +18,7 @@ from line_odom_core.config import load_config
 
 import test_degenerate_scenes as degenerate
 import test_turns
+from recording_engine import RecordingEngine
 
 # A MEMS gyro: 0.002 rad/s white noise per sample at 200 Hz, an uncalibrated bias of 0.5 deg/s about z (0.05 deg a
 # frame at 10 Hz) and a little about x and y.
@@ -182,28 +183,8 @@ def test_rate_steps_and_smooth_rates_against_the_truth():
 def _recording_processor(overrides, engine=None):
     config = load_config("kitti_hdl64")
     settings = NodeSettings.from_mapping({**config.extra, "imu.enabled": True, **overrides})
-    engine = engine or RecordingEngine()
+    engine = engine or RecordingEngine("constant_velocity+imu")
     return OdometryProcessor(config, settings, engine=engine), engine
-
-
-class RecordingEngine:
-    """Stands still and records the keywords of every call."""
-
-    def __init__(self):
-        self.calls = []
-
-    def register_points(self, xyz, stamp, ring=None, **kwargs):
-        self.calls.append(kwargs)
-
-        class R:
-            pose = np.eye(4)
-            delta = np.eye(4)
-            covariance = np.eye(6) * 1e-4
-            stats = {"solver": "3L1P", "degenerate": False, "prediction": "constant_velocity+imu", "ms": {"total": 1.0}}
-        return R()
-
-    def reset(self, pose=None):
-        pass
 
 
 def _scan(stamp_ns, frame_id="lidar"):
@@ -330,7 +311,7 @@ def test_imu_mounting_from_tf_static_and_a_guess_takes_the_gyro_rotation():
 
 def test_imu_is_off_by_default_and_its_parameters_are_checked():
     config = load_config("kitti_hdl64")
-    engine = RecordingEngine()
+    engine = RecordingEngine("constant_velocity+imu")
     proc = OdometryProcessor(config, NodeSettings.from_mapping(config.extra), engine=engine)
     assert proc.add_imu(_imu_msg(0, [0.0, 0.0, 1.0])) is False
     for k in range(2):

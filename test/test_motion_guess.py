@@ -14,6 +14,8 @@ from line_odom.motion_guess import GuessError, MotionGuess
 from line_odom.processor import NodeSettings, OdometryProcessor
 from line_odom_core.config import load_config
 
+from recording_engine import RecordingEngine
+
 
 def _T(xyz, rotvec=(0.0, 0.0, 0.0)):
     T = np.eye(4)
@@ -77,32 +79,12 @@ def test_unusable_odometry_messages_name_the_field(edit, field):
         MotionGuess("base_link").add(msg)
 
 
-class RecordingEngine:
-    """Stands still and records the guess of every call."""
-
-    def __init__(self):
-        self.guesses = []
-
-    def register_points(self, xyz, stamp, ring=None, **kwargs):
-        self.guesses.append(kwargs.get("guess"))
-
-        class R:
-            pose = np.eye(4)
-            delta = np.eye(4)
-            covariance = np.eye(6) * 1e-4
-            stats = {"solver": "3L1P", "degenerate": False, "prediction": "guess", "ms": {"total": 1.0}}
-        return R()
-
-    def reset(self, pose=None):
-        pass
-
-
 def test_processor_passes_the_sensor_motion_between_scans_and_counts_frames_without_one():
     config = load_config("kitti_hdl64")
     base_to_sensor = [0.5, 0.0, 1.7, 0.0, 0.0, 0.3]
     settings = NodeSettings.from_mapping({**config.extra, "guess.enabled": True, "guess.tolerance": 0.05,
                                                      "base_to_sensor": base_to_sensor})
-    engine = RecordingEngine()
+    engine = RecordingEngine("guess")
     proc = OdometryProcessor(config, settings, engine=engine)
     rng = np.random.default_rng(0)
     base = [_T([1.3 * k, 0.02 * k * k, 0.0], [0.0, 0.0, 0.01 * k]) for k in range(6)]
@@ -127,7 +109,7 @@ def test_processor_passes_the_sensor_motion_between_scans_and_counts_frames_with
 
 def test_guess_is_off_by_default_and_then_never_passed():
     config = load_config("kitti_hdl64")
-    engine = RecordingEngine()
+    engine = RecordingEngine("guess")
     proc = OdometryProcessor(config, NodeSettings.from_mapping(config.extra), engine=engine)
     assert proc.add_guess(_odom_msg(0, np.eye(4))) is False
     for k in range(2):
@@ -266,7 +248,7 @@ def test_a_guess_source_that_jumps_is_not_followed():
     # registered with the constant-velocity prediction instead, and the jump is counted and logged.
     config = load_config("kitti_hdl64")
     settings = NodeSettings.from_mapping({**config.extra, "guess.enabled": True})
-    engine = RecordingEngine()
+    engine = RecordingEngine("guess")
     proc = OdometryProcessor(config, settings, engine=engine)
     positions = [0.0, 1.0, 2.0, -8.0, -7.0]  # the source jumps back by 10 m between the 3rd and 4th scan
     for k, x in enumerate(positions):
