@@ -171,6 +171,15 @@ def test_replay_takes_the_sensor_mounting_from_the_bags_tf_static(tmp_path, caps
     assert "base_to_sensor_from_tf is set but the bag has no /tf_static" in err and "Traceback" not in err
 
 
+def _write_scan(writer, stamp, xyz, ring, pose):
+    """One scan on /points (x, y, z, ring in the velodyne frame) and its ground-truth pose, at `stamp` (ns)."""
+    points = np.zeros(len(xyz), dtype=bags.KITTI_POINT_DTYPE)
+    points["x"], points["y"], points["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    points["ring"] = ring
+    writer.write("/points", bags.POINTCLOUD2, stamp, writer.msgs.pointcloud2(stamp, "velodyne", points))
+    writer.write(bags.GROUND_TRUTH_TOPIC, bags.ODOMETRY, stamp, writer.msgs.odometry(stamp, "map", "velodyne", pose))
+
+
 def _wheel_odometry_bag(path):
     """KITTI 04 from scan 2 (ring field, ground truth) with /wheel/odometry: the ground truth's x, y and yaw, 3 %
     long, at the scans' stamps. Returns the number of scans."""
@@ -181,9 +190,6 @@ def _wheel_odometry_bag(path):
         for k, i in enumerate(range(2, len(seq))):
             stamp = int(round(stamps[k] * 1e9))
             raw = seq.points(i)
-            points = np.zeros(len(raw), dtype=bags.KITTI_POINT_DTYPE)
-            points["x"], points["y"], points["z"] = raw[:, 0], raw[:, 1], raw[:, 2]
-            points["ring"] = bags.kitti_rings(raw)
             yaw = np.arctan2(poses[k][1, 0], poses[k][0, 0])
             wheel = np.eye(4)
             wheel[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
@@ -191,9 +197,7 @@ def _wheel_odometry_bag(path):
             # (written first: a wheel odometry's message reaches the recorder before the scan of the same stamp,
             # which the LiDAR driver sends once its sweep is complete)
             writer.write("/wheel/odometry", bags.ODOMETRY, stamp, writer.msgs.odometry(stamp, "odom", "velodyne", wheel))
-            writer.write("/points", bags.POINTCLOUD2, stamp, writer.msgs.pointcloud2(stamp, "velodyne", points))
-            writer.write(bags.GROUND_TRUTH_TOPIC, bags.ODOMETRY, stamp,
-                         writer.msgs.odometry(stamp, "map", "velodyne", poses[k]))
+            _write_scan(writer, stamp, raw[:, :3], bags.kitti_rings(raw), poses[k])
     return len(poses)
 
 
@@ -233,12 +237,7 @@ def _gyro_bag(path, frames=12, imu_topic="/imu"):
                 writer.write(imu_topic, bags.IMU, stamp, writer.msgs.imu(stamp, "velodyne", what))
                 continue
             _, scan, _ = drive[what]
-            points = np.zeros(len(scan.points), dtype=bags.KITTI_POINT_DTYPE)
-            points["x"], points["y"], points["z"] = scan.points.T
-            points["ring"] = scan.ring
-            writer.write("/points", bags.POINTCLOUD2, stamp, writer.msgs.pointcloud2(stamp, "velodyne", points))
-            writer.write(bags.GROUND_TRUTH_TOPIC, bags.ODOMETRY, stamp,
-                         writer.msgs.odometry(stamp, "map", "velodyne", poses[what]))
+            _write_scan(writer, stamp, scan.points, scan.ring, poses[what])
     return len(drive)
 
 
