@@ -484,7 +484,11 @@ class OdometryProcessor:
             self._reject("frames_without_imu", f"scan at {stamp_ns * 1e-9:.3f} s registered without the gyro: {why}",
                          "plain prediction")
             return None
-        return in_sensor_frame(R_imu, self.T_sensor_base @ self.T_base_imu)
+        return in_sensor_frame(R_imu, self._T_sensor_imu())
+
+    def _T_sensor_imu(self) -> np.ndarray:
+        """The IMU's pose in the sensor frame (T_sensor_base T_base_imu; T_base_imu known)."""
+        return self.T_sensor_base @ self.T_base_imu
 
     def _await_gyro(self, until_ns: int) -> None:
         """Waits up to imu.wait for a gyro sample at or past `until_ns` (the scan's stamp or its sweep's end): a scan's
@@ -510,7 +514,7 @@ class OdometryProcessor:
                 self.counters["sweeps_without_gyro"] += 1
             return None
         rate_imu = Rotation.from_matrix(R_imu).as_rotvec() / ((t1 - t0) * 1e-9)
-        return (self.T_sensor_base @ self.T_base_imu)[:3, :3] @ rate_imu
+        return self._T_sensor_imu()[:3, :3] @ rate_imu
 
     def _learn_gyro_bias(self, rotation: np.ndarray, delta: np.ndarray, stats: dict, seconds: float) -> None:
         """imu.bias_gain of the difference between the gyro's turn and a frame's registered one into the bias, when
@@ -522,7 +526,7 @@ class OdometryProcessor:
         residual = Rotation.from_matrix(rotation.T @ delta[:3, :3]).as_rotvec()
         if np.linalg.norm(residual) > np.radians(0.5):
             return
-        R_imu_sensor = (self.T_sensor_base @ self.T_base_imu)[:3, :3].T
+        R_imu_sensor = self._T_sensor_imu()[:3, :3].T
         with self._imu_lock:
             self.gyro.learn_bias(R_imu_sensor @ residual, seconds, gain)
 
