@@ -949,31 +949,48 @@ const double* time_pointer(const std::optional<TimeArray>& time, const std::vect
   return time->data();
 }
 
+// An (N, >=3) float32 / float64 cloud read in place, with its ring field; checked (xyz, then ring) when made.
+struct CloudView {
+  CloudView(const py::array& xyz, const std::optional<py::array_t<std::int32_t>>& ring)
+      : stride(point_stride(xyz, 2, "an (N, 3) array of points")),
+        count(static_cast<std::size_t>(xyz.shape(0))),
+        ring(ring_pointer(ring, count)),
+        is_float(py::isinstance<py::array_t<float>>(xyz)),
+        data(xyz.data()) {}
+  std::size_t stride;
+  std::size_t count;
+  const std::int32_t* ring;
+  bool is_float;
+  const void* data;
+};
+
+// f(points, count, stride, ring) on the cloud without the GIL; the engine's std::invalid_argument becomes ValueError.
+template <typename F>
+auto on_cloud(const CloudView& cloud, F&& f) {
+  py::gil_scoped_release release;
+  try {
+    return cloud.is_float ? f(static_cast<const float*>(cloud.data), cloud.count, cloud.stride, cloud.ring)
+                          : f(static_cast<const double*>(cloud.data), cloud.count, cloud.stride, cloud.ring);
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(e.what());
+  }
+}
+
 line_odom::FrameResult register_points(line_odom::Odometry& o, const py::array& xyz, double stamp,
                                        const std::optional<py::array_t<std::int32_t>>& ring,
                                        const std::optional<line_odom::Mat4>& guess,
                                        const std::optional<line_odom::Mat3>& rotation_guess,
                                        const std::optional<TimeArray>& time,
                                        const std::optional<line_odom::Vec3>& sweep_rate) {
-  const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
-  const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
-  const std::int32_t* ring_ptr = ring_pointer(ring, n);
+  const CloudView cloud(xyz, ring);
   const double* time_ptr = time_pointer(time, {xyz.shape(0)}, "one time (s from the stamp) per point, shape (N,)");
   const std::optional<line_odom::RigidTransform> T = guess_transform(guess);
   const line_odom::RigidTransform* guess_ptr = T ? &*T : nullptr;
   const line_odom::Mat3* rotation_ptr = rotation_guess ? &*rotation_guess : nullptr;
   const line_odom::Vec3* rate_ptr = sweep_rate ? &*sweep_rate : nullptr;
-  const bool is_float = py::isinstance<py::array_t<float>>(xyz);
-  const void* data = xyz.data();
-  py::gil_scoped_release release;
-  try {
-    return is_float ? o.register_points(static_cast<const float*>(data), n, stride, ring_ptr, stamp, guess_ptr,
-                                        rotation_ptr, time_ptr, rate_ptr)
-                    : o.register_points(static_cast<const double*>(data), n, stride, ring_ptr, stamp, guess_ptr,
-                                        rotation_ptr, time_ptr, rate_ptr);
-  } catch (const std::invalid_argument& e) {
-    throw py::value_error(e.what());
-  }
+  return on_cloud(cloud, [&](const auto* data, auto n, auto stride, auto rings) {
+    return o.register_points(data, n, stride, rings, stamp, guess_ptr, rotation_ptr, time_ptr, rate_ptr);
+  });
 }
 
 line_odom::FrameResult register_organized(line_odom::Odometry& o, const py::array& xyz, double stamp,
@@ -1021,28 +1038,11 @@ line_odom::FrameResult register_depth(line_odom::Odometry& o,
   }
 }
 
-// f(points, count, stride, ring) on an (N, >=3) float32 / float64 cloud read in place, without the GIL; the engine's
-// std::invalid_argument becomes ValueError.
-template <typename F>
-auto on_cloud(const py::array& xyz, const std::optional<py::array_t<std::int32_t>>& ring, F&& f) {
-  const std::size_t stride = point_stride(xyz, 2, "an (N, 3) array of points");
-  const std::size_t n = static_cast<std::size_t>(xyz.shape(0));
-  const std::int32_t* ring_ptr = ring_pointer(ring, n);
-  const bool is_float = py::isinstance<py::array_t<float>>(xyz);
-  const void* data = xyz.data();
-  py::gil_scoped_release release;
-  try {
-    return is_float ? f(static_cast<const float*>(data), n, stride, ring_ptr)
-                    : f(static_cast<const double*>(data), n, stride, ring_ptr);
-  } catch (const std::invalid_argument& e) {
-    throw py::value_error(e.what());
-  }
-}
 
 py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::array& xyz,
                                        const std::optional<py::array_t<std::int32_t>>& ring) {
   const std::vector<line_odom::Vec3> pts =
-      on_cloud(xyz, ring, [&](const auto* data, std::size_t n, std::size_t stride, const std::int32_t* rings) {
+      on_cloud(CloudView(xyz, ring), [&](const auto* data, auto n, auto stride, auto rings) {
         return o.downsampled_points(data, n, stride, rings);
       });
   py::array_t<double> out({static_cast<py::ssize_t>(pts.size()), static_cast<py::ssize_t>(3)});
@@ -1055,7 +1055,7 @@ py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::a
 py::dict sensor_fit(const line_odom::Odometry& o, const py::array& xyz,
                     const std::optional<py::array_t<std::int32_t>>& ring) {
   const line_odom::SensorFit fit =
-      on_cloud(xyz, ring, [&](const auto* data, std::size_t n, std::size_t stride, const std::int32_t* rings) {
+      on_cloud(CloudView(xyz, ring), [&](const auto* data, auto n, auto stride, auto rings) {
         return line_odom::fit_to_sensor(data, n, stride, rings, o.sensor_model(), o.config().sensor.limits);
       });
   py::dict d;
