@@ -72,6 +72,12 @@ RigidTransform with_rotation(const RigidTransform& prediction, const Mat3& R) {
   return out;
 }
 
+// `velocity` for a sweep deskewed at `own`: a turn measured over the sweep itself (a gyro's) stays its own.
+SweepVelocity keeping_measured_rate(const SweepVelocity& own, SweepVelocity velocity) {
+  if (own.measured_rate) velocity.rate = own.rate, velocity.measured_rate = true;
+  return velocity;
+}
+
 // The orthogonal projector onto the span of the (independent) columns of `basis`.
 Mat6 subspace_projector(const Eigen::Matrix<double, 6, Eigen::Dynamic>& basis) {
   if (basis.cols() == 0) return Mat6::Zero();
@@ -300,13 +306,9 @@ SweepVelocity Odometry::sweep_velocity(double stamp, const RigidTransform* guess
 // frame, 0.003 -> 0.05 m a frame at 1/36; the pair alike: 0.0018 m, as with the true velocity). The previous scan's
 // features are moved rather than fitted again: the difference is millimetres, a rigid motion per column's time.
 bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
-  // A point this far away stands for the scan's lines (most lie within 20 m).
-  constexpr double kLever = 20.0;
   const SweepTimes& prev = prev_sweep_;
-  SweepVelocity target = velocity;  // a turn measured over the previous sweep itself stays its own
-  if (prev.velocity.measured_rate) target.rate = prev.velocity.rate, target.measured_rate = true;
-  if (deskew_difference(prev.velocity, target, prev.first, prev.last, kLever) <= config_.sensor.deskew_tolerance)
-    return false;
+  const SweepVelocity target = keeping_measured_rate(prev.velocity, velocity);
+  if (corrected_alike(prev.velocity, target, prev.first, prev.last)) return false;
   move_features(&prev_features_, prev, target);
   if (config_.registration.window > 1) window_.replace_newest(prev_features_);
   prev_sweep_.velocity = target;
@@ -319,17 +321,18 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
 // sweep before its stamp is compared (a sweep stamped at its start has none: iterating those did not help,
 // docs/RESULTS.md, Session 17), and both scans of the pair are corrected alike at the registered velocity (the previous
 // scan at its own registered motion fed each frame's error into the next, Session 17).
+bool Odometry::corrected_alike(const SweepVelocity& a, const SweepVelocity& b, double first, double last) const {
+  constexpr double kLever = 20.0;  // m: a point this far away stands for the scan's lines (most lie within 20 m)
+  return deskew_difference(a, b, first, last, kLever) <= config_.sensor.deskew_tolerance;
+}
+
 int Odometry::deskew_at_registered(ScanFeatures* features, SweepTimes* sweep, double dt,
                                    const RigidTransform& prediction, PassOutcome* outcome, FrameStats* st) {
-  constexpr double kLever = 20.0;  // as deskew_previous_again's
   int again = 0;
   if (!(std::isfinite(dt) && dt > 0.0) || !(sweep->first < 0.0)) return again;
   while (again < config_.sensor.deskew_iterations && registered_in_full(*outcome)) {
-    SweepVelocity registered = SweepVelocity::over(outcome->best, dt);
-    if (sweep->velocity.measured_rate) registered.rate = sweep->velocity.rate, registered.measured_rate = true;
-    if (deskew_difference(sweep->velocity, registered, sweep->first, std::min(sweep->last, 0.0), kLever) <=
-        config_.sensor.deskew_tolerance)
-      break;
+    const SweepVelocity registered = keeping_measured_rate(sweep->velocity, SweepVelocity::over(outcome->best, dt));
+    if (corrected_alike(sweep->velocity, registered, sweep->first, std::min(sweep->last, 0.0))) break;
     Stopwatch watch;
     move_features(features, *sweep, registered);
     sweep->velocity = registered;

@@ -217,6 +217,9 @@ class Odometry {
   // `velocity` puts them: moves its features to where `velocity` would have put them (each line's ends by the
   // difference at their columns' times, planes at mid-sweep). True when it did.
   bool deskew_previous_again(const SweepVelocity& velocity);
+  // Whether sweep times [first, last] deskewed at `a` and at `b` put a point 20 m away within
+  // sensor.deskew_tolerance of each other.
+  bool corrected_alike(const SweepVelocity& a, const SweepVelocity& b, double first, double last) const;
   // sensor.deskew_iterations: while the velocity of the registered motion (over `dt`) puts the sweep's points before
   // its stamp more than sensor.deskew_tolerance from where sweep->velocity put them, moves the scan's features (and the
   // previous scan's) to it and registers again from the estimate. Returns how many times it did.
