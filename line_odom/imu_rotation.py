@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from line_odom import convert
+from line_odom.motion_guess import keep_window
 
 
 class ImuError(convert.ConversionError):
@@ -83,10 +84,7 @@ class GyroRotation:
         self.frame_id = frame_id
         self._stamps.append(stamp)
         self._rates.append(rate)
-        cut = bisect.bisect_left(self._stamps, stamp - self.window_ns)
-        cut = min(cut, len(self._stamps) - 2) if len(self._stamps) >= 2 else 0
-        if cut > 0:
-            del self._stamps[:cut], self._rates[:cut]
+        keep_window(self._stamps, self._rates, stamp, self.window_ns)
         return not restarted
 
     def learn_bias(self, residual: np.ndarray, seconds: float, gain: float) -> None:

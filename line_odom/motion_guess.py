@@ -21,6 +21,15 @@ class GuessError(convert.ConversionError):
         super().__init__("Odometry", field, reason)
 
 
+def keep_window(stamps: list[int], values: list, newest_ns: int, window_ns: int) -> None:
+    """Drops from the parallel lists the entries more than window_ns before newest_ns, keeping at least the newest
+    two (something to interpolate or extrapolate between)."""
+    cut = bisect.bisect_left(stamps, newest_ns - window_ns)
+    cut = min(cut, len(stamps) - 2) if len(stamps) >= 2 else 0
+    if cut > 0:
+        del stamps[:cut], values[:cut]
+
+
 def odometry_pose(msg, base_frame: str) -> tuple[int, np.ndarray]:
     """(stamp in ns, T_source_base 4x4) of a nav_msgs/Odometry; GuessError naming the field when it is unusable."""
     child = str(msg.child_frame_id)
@@ -70,10 +79,7 @@ class MotionGuess:
         else:
             self._stamps.append(stamp)
             self._poses.append(T)
-        cut = bisect.bisect_left(self._stamps, stamp - self.window_ns)
-        cut = min(cut, len(self._stamps) - 2) if len(self._stamps) >= 2 else 0
-        if cut > 0:
-            del self._stamps[:cut], self._poses[:cut]
+        keep_window(self._stamps, self._poses, stamp, self.window_ns)
         return not restarted
 
     def pose_at(self, stamp_ns: int) -> np.ndarray | None:
