@@ -319,6 +319,12 @@ def simulated_drive(frames: int, sensor: str, distorted: str):
     return run, gt, preset
 
 
+def sim_configs(preset: str, sensor: str, levels, overrides: dict):
+    """The preset's config at each downsampling step of `levels` for the HDL-64E, at the preset's own for the others."""
+    for level in (levels if sensor == "hdl64" else (None,)):
+        yield line_odom_core.load_config(preset, {**({} if level is None else {"downsample": level}), **overrides})
+
+
 def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64") -> None:
     """Simulated street drive (line_odom.sim: 10 m/s, 10 Hz, 1 cm range noise), KITTI devkit metric. HDL-64 with
     kitti_hdl64 at each of `levels`; VLP-16 / OS-128 with their own presets at the presets' resolution (the issue's
@@ -328,9 +334,7 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str
     run, gt, preset = simulated_drive(frames, sensor, "")
     print(f"{'res':5} | {'line_odom t_err [%]':>20} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | "
           f"{'KISS-ICP t_err [%]':>19} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | goal", flush=True)
-    for level in (levels if sensor == "hdl64" else (None,)):
-        level_over = {} if level is None else {"downsample": level}
-        config = line_odom_core.load_config(preset, {**level_over, **overrides})
+    for config in sim_configs(preset, sensor, levels, overrides):
         step = config["downsample"]
         odom = line_odom_core.Odometry(config)
         kiss_odom = kiss_odometry(100.0) if kiss else None
@@ -357,12 +361,12 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str
             k_rpe = summary(frame_errors(np.array(kiss_est), gt))[0]
             k_text = (f"{kscores[0]:19.3f} {kscores[1]:14.5f}" if kscores else f"{'too short':>19} {'':>14}") + \
                 f" {k_rpe:10.4f} {np.mean(kiss_ms[1:]):6.1f}"
-        if level is None:
+        if sensor != "hdl64":
             name, goal = f"1/{step * step}" if step > 1 else "full", "-"
         else:
-            goal_pct = 1.0 if level == 1 else 3.0
+            goal_pct = 1.0 if step == 1 else 3.0
             verdict = "?" if scores is None else ("MET" if scores[0] <= goal_pct else "MISSED")
-            name, goal = KITTI_LEVELS[level], f"t_err <= {goal_pct}%: {verdict}"
+            name, goal = KITTI_LEVELS[step], f"t_err <= {goal_pct}%: {verdict}"
         print(f"{name:5} | {lo_text} | {k_text} | {goal}", flush=True)
 
 
@@ -384,9 +388,7 @@ def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), s
         gt = np.array([run.trajectory.pose_at(stamp + period) for stamp in run.trajectory.stamps])
     print(f"{'res':5} {'method':24} | {'t_err [%]':>10} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'r [deg]':>8} "
           f"{'ms':>6}", flush=True)
-    for level in (levels if sensor == "hdl64" else (None,)):
-        level_over = {} if level is None else {"downsample": level}
-        config = line_odom_core.load_config(preset, {**level_over, **overrides})
+    for config in sim_configs(preset, sensor, levels, overrides):
         step = config["downsample"]
         methods = {"line_odom deskewed": line_odom_core.Odometry(config),
                    "line_odom as measured": line_odom_core.Odometry(config)}
