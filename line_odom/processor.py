@@ -264,8 +264,7 @@ class OdometryProcessor:
         self._frame_lock = threading.RLock()
         self._count_lock = threading.Lock()
         self._guess_lock = threading.Lock()
-        self._K: np.ndarray | None = None
-        self._K_shape: tuple[int, int] | None = None  # (height, width) the CameraInfo states, None when it states none
+        self._camera_info = None  # the last valid CameraInfo (its K checked; its size against each depth image)
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_failed=0,
             frames_duplicate=0, resets=0, frames_deskewed=0, frames_deskewed_again=0, point_times_ignored=0,
@@ -532,17 +531,16 @@ class OdometryProcessor:
 
     @property
     def has_camera_info(self) -> bool:
-        return self._K is not None
+        return self._camera_info is not None
 
     def set_camera_info(self, msg) -> bool:
         """Validate and keep the intrinsics; a malformed CameraInfo is counted and the previous K is kept."""
         try:
-            K = convert.camera_info_to_K(msg)
+            convert.camera_info_to_K(msg)
         except convert.ConversionError as err:
             self._reject("frames_malformed", str(err))
             return False
-        self._K = K
-        self._K_shape = (int(msg.height), int(msg.width)) if int(msg.width) and int(msg.height) else None
+        self._camera_info = msg
         return True
 
     def check_depth_image(self, msg) -> bool:
@@ -622,14 +620,13 @@ class OdometryProcessor:
         except convert.ConversionError as err:
             self._reject("frames_malformed", str(err))
             return None
-        K = self._K
-        if K is None:
+        if self._camera_info is None:
             self._reject("frames_dropped", "no valid CameraInfo received yet for the depth image")
             return None
-        if self._K_shape is not None and self._K_shape != depth.shape:
-            self._reject("frames_malformed", f"camera_info.width/height: the CameraInfo is {self._K_shape[1]} x "
-                         f"{self._K_shape[0]} but the depth image is {depth.shape[1]} x {depth.shape[0]} (is "
-                         f"depth/camera_info the depth image's own?)")
+        try:
+            K = convert.camera_info_to_K(self._camera_info, depth.shape)
+        except convert.ConversionError as err:  # another camera's CameraInfo (e.g. the colour camera's)
+            self._reject("frames_malformed", f"{err} (is depth/camera_info the depth image's own?)")
             return None
         stamp_ns = convert.stamp_to_ns(image.header.stamp)
         self._await_gyro(stamp_ns)

@@ -195,7 +195,7 @@ def test_depth_needs_camera_info_and_rejects_bad_one():
     # another camera's CameraInfo (a colour camera's 10 x 8 for a 5 x 4 depth image): refused, naming both sizes
     other = convert.camera_info_from_K(np.diag([500.0, 500.0, 1.0]), 10, 8)
     assert proc.process_depth(convert.depth_to_image(np.full((4, 5), 2.0), stamp=2.0), other) is None
-    assert proc.counters["frames_malformed"] == 2 and "10 x 8 but the depth image is 5 x 4" in proc.last_error
+    assert proc.counters["frames_malformed"] == 2 and "CameraInfo is 10 x 8 but the image is 5 x 4" in proc.last_error
     unsized = convert.camera_info_from_K(np.diag([500.0, 500.0, 1.0]), 0, 0)  # states no size: taken as it is
     assert proc.process_depth(convert.depth_to_image(np.full((4, 5), 2.0), stamp=3.0), unsized) is not None
 
