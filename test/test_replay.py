@@ -180,6 +180,16 @@ def _write_scan(writer, stamp, xyz, ring, pose):
     writer.write(bags.GROUND_TRUTH_TOPIC, bags.ODOMETRY, stamp, writer.msgs.odometry(stamp, "map", "velodyne", pose))
 
 
+def _replay_without_and_with(tmp_path, bag, option, topic):
+    """The metrics of replaying `bag` (at 1/36, base frame velodyne) without and with `option topic`; giving the
+    option the scans' topic /points must fail (its error is left on stderr)."""
+    common = ["--set", "downsample=6", "--set", "base_frame=velodyne", "--quiet"]
+    assert main(["replay", str(bag), "--out", str(tmp_path / "without"), *common]) == 0
+    assert main(["replay", str(bag), "--out", str(tmp_path / "with"), option, topic, *common]) == 0
+    assert main(["replay", str(bag), "--out", str(tmp_path / "o"), option, "/points", *common]) == 1
+    return _metrics(tmp_path / "without"), _metrics(tmp_path / "with")
+
+
 def _wheel_odometry_bag(path):
     """KITTI 04 from scan 2 (ring field, ground truth) with /wheel/odometry: the ground truth's x, y and yaw, 3 %
     long, at the scans' stamps. Returns the number of scans."""
@@ -207,13 +217,9 @@ def test_replay_with_a_wheel_odometry_topic_as_the_motion_guess(tmp_path, capsys
     # measured 0.037 m (bench/motion_guess.py); bound 0.1 m.
     bag = tmp_path / "bag"
     n = _wheel_odometry_bag(bag)
-    common = ["--set", "downsample=6", "--set", "base_frame=velodyne", "--quiet"]
-    assert main(["replay", str(bag), "--out", str(tmp_path / "without"), *common]) == 0
-    assert _metrics(tmp_path / "without")["rpe_trans_mean_m"] > 1.0
-    assert main(["replay", str(bag), "--out", str(tmp_path / "with"), "--guess-topic", "/wheel/odometry", *common]) == 0
-    m = _metrics(tmp_path / "with")
+    without, m = _replay_without_and_with(tmp_path, bag, "--guess-topic", "/wheel/odometry")
+    assert without["rpe_trans_mean_m"] > 1.0
     assert m["frames"] == n and m["rpe_trans_mean_m"] < 0.1, m
-    assert main(["replay", str(bag), "--out", str(tmp_path / "o"), "--guess-topic", "/points", *common]) == 1
     err = capsys.readouterr().err
     assert "guess topic /points is sensor_msgs/msg/PointCloud2, expected nav_msgs/msg/Odometry" in err, err
 
@@ -247,13 +253,9 @@ def test_replay_with_an_imu_topic_as_the_rotation_guess(tmp_path, capsys):
     # 0.01 deg max; bound 0.3.
     bag = tmp_path / "bag"
     n = _gyro_bag(bag)
-    common = ["--set", "downsample=6", "--set", "base_frame=velodyne", "--quiet"]
-    assert main(["replay", str(bag), "--out", str(tmp_path / "without"), *common]) == 0
-    assert _metrics(tmp_path / "without")["rpe_rot_max_deg"] > 5.0
-    assert main(["replay", str(bag), "--out", str(tmp_path / "with"), "--imu-topic", "/imu", *common]) == 0
-    m = _metrics(tmp_path / "with")
+    without, m = _replay_without_and_with(tmp_path, bag, "--imu-topic", "/imu")
+    assert without["rpe_rot_max_deg"] > 5.0
     assert m["frames"] == n and m["rpe_rot_max_deg"] < 0.3, m
-    assert main(["replay", str(bag), "--out", str(tmp_path / "o"), "--imu-topic", "/points", *common]) == 1
     err = capsys.readouterr().err
     assert "imu topic /points is sensor_msgs/msg/PointCloud2, expected sensor_msgs/msg/Imu" in err, err
 
