@@ -36,7 +36,7 @@ from accuracy import depth_points, kiss_odometry, overrides_and_kiss  # noqa: E4
 from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402
 
 ALL_LINES = 0  # the "level" of the full-resolution run with registration.max_lines = 0
-STAGES = ("organize", "downsample", "features", "lines", "candidates", "ransac", "total")  # lines: part of features
+STAGES = ("organize", "downsample", "features", "lines", "candidates", "ransac", "points", "total")  # lines: part of features
 
 
 def kitti_frames(seqs):

@@ -799,7 +799,8 @@ class OdometryProcessor:
         for key in (
                 "solver", "inliers", "degenerate", "held_directions", "candidates", "h_lines", "v_lines",
                 "registered_lines", "planes", "prediction", "unmeasured_directions", "window_scans", "turn_searched",
-                "turn_recovered", "deskewed", "previous_deskewed_again", "deskewed_again"):
+                "turn_recovered", "deskewed", "previous_deskewed_again", "deskewed_again", "points_refined",
+                "point_matches"):
             if key in stats:
                 values[key] = stats[key]
         if "persistence" in stats:  # the share of the last motion the prediction carried, x y z rx ry rz

@@ -127,7 +127,11 @@ class FrameResult:
                               picked near it support it 1.5 times as much
       window_scans: int       previous scans this frame was registered against: registration.window when the last
                               scan alone observed every direction of that motion, else 1 (0 on the first frame)
-      ms: dict[str, float]    per-stage milliseconds: organize, downsample, features, candidates, ransac, total
+      points_refined: bool    the point-to-plane refinement (points.*) moved the lines' estimate: this scan's voxel
+                              means against the previous scan's voxel planes, jointly with the lines' estimate
+      point_matches: int      ... this many voxel means had a planar partner
+      ms: dict[str, float]    per-stage milliseconds: organize, deskew, downsample, features (lines, normals,
+                              planes), candidates, ransac, points (the refinement and this scan's voxels), total
     """
 
     stamp: float

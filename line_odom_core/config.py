@@ -205,6 +205,24 @@ _ENTRIES: list[ConfigEntry] = [
                 "reported when the prediction is held", 0.0, 1000.0),
     ConfigEntry("registration.fallback_rotation_sigma_deg", float, 5.0, "1-sigma rotation uncertainty (deg) "
                 "reported when the prediction is held", 0.0, 180.0),
+    # --- point-to-plane refinement (beyond the paper; docs/RESULTS.md, session 18) ---
+    ConfigEntry("points.weight", float, 0.0, "information (1/m^2) of one point-to-plane residual of this scan's "
+                "points against the previous scan's surface, refined jointly with the lines' estimate (as a Gaussian "
+                "of its covariance) after the registration; dense scans only: on sparse ones the surface's normals "
+                "are few and poor (KITTI at 1/36 loses). 0 = off (the paper's method)", 0.0, 1e6),
+    ConfigEntry("points.max_downsample", int, 1, "the refinement runs only while downsample is at most this step "
+                "(the weight is measured at full resolution; sparser scans lose with it: docs/RESULTS.md)", 1, 1000),
+    ConfigEntry("points.voxel", float, 1.0, "both scans are binned in cubes of this size (m): this scan's voxel "
+                "means are matched to the planes of the previous scan's voxels they fall in", 1e-3, 10.0),
+    ConfigEntry("points.stride", int, 1, "every n-th row and column of the range image is binned", 1, 64),
+    ConfigEntry("points.min_points", int, 6, "points a voxel's plane needs", 3, 1000000),
+    ConfigEntry("points.min_planarity", float, 0.1, "a voxel is flat enough when (l1 - l0) / l2 of its points' "
+                "scatter's eigenvalues reaches this", 0.0, 1.0),
+    ConfigEntry("points.huber", float, 0.1, "robust loss width of the point-to-plane residuals (m)", 1e-4, 10.0),
+    ConfigEntry("points.iterations", int, 10, "Gauss-Newton iterations, the partners found again in each", 1, 100),
+    ConfigEntry("points.max_translation", float, 0.1, "a refinement moving the lines' estimate further than this (m) "
+                "is not taken", 0.0, 10.0),
+    ConfigEntry("points.max_rotation_deg", float, 0.5, "... or turning it more than this (deg)", 0.0, 180.0),
 ]
 
 CHOICES: dict[str, tuple[str, ...]] = {"ransac.solver": ("auto", "7L", "3L1P", "1L2P"),

@@ -845,6 +845,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   ms["planes"] = s.ms.planes;
   ms["candidates"] = s.ms.candidates;
   ms["ransac"] = s.ms.ransac;
+  ms["points"] = s.ms.points;
   ms["total"] = s.ms.total;
   py::dict d;
   d["solver"] = s.solver;
@@ -878,6 +879,8 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["deskewed"] = s.deskewed;
   d["previous_deskewed_again"] = s.previous_deskewed_again;
   d["deskewed_again"] = s.deskewed_again;
+  d["points_refined"] = s.points_refined;
+  d["point_matches"] = s.point_matches;
   d["ms"] = ms;
   return d;
 }

@@ -18,6 +18,7 @@
 #include "feature_window.hpp"
 #include "motion_estimation.hpp"
 #include "motion_persistence.hpp"
+#include "point_refine.hpp"
 #include "refine.hpp"
 #include "range_image.hpp"
 #include "scan_features.hpp"
@@ -87,11 +88,13 @@ struct OdometryConfig {
   CandidateOptions candidates;
   MotionOptions ransac;
   RegistrationOptions registration;
+  PointRefineOptions points;  // points.*: the point-to-plane refinement (point_refine.hpp)
 };
 
 struct StageMilliseconds {
   double organize = 0, downsample = 0, features = 0, candidates = 0, ransac = 0, total = 0;
   double lines = 0, normals = 0, planes = 0;  // parts of features
+  double points = 0;  // the point-to-plane refinement, its surface built for the next frame included
   double deskew = 0;  // correcting both scans' sweeps (before the registration: part of organize; after it, at the
                       // registered motion: besides the stages)
 };
@@ -130,6 +133,8 @@ struct FrameStats {
                                          // one (its features moved), so that both scans are corrected alike
   int deskewed_again = 0;  // times the sweep was deskewed again at the motion registered for it, and registered again
                            // (sensor.deskew_iterations)
+  bool points_refined = false;  // the point-to-plane refinement (points.weight) moved the lines' estimate
+  int point_matches = 0;        // ... with this many of the scan's voxel points on a planar partner
   StageMilliseconds ms;
 };
 
@@ -197,6 +202,10 @@ class Odometry {
                                    int organized_step = 1, const RigidTransform* guess = nullptr,
                                    const Mat3* rotation_guess = nullptr);
   int organize_step(double stamp, bool guessed = false) const;  // the step the next frame is organized at
+  // The point-to-plane refinement runs: points.weight > 0 at a downsampling step within points.max_downsample.
+  bool points_refining() const {
+    return config_.points.weight > 0.0 && config_.downsample <= config_.points.max_downsample;
+  }
 
   void reset(const RigidTransform& pose = RigidTransform::identity());
 
@@ -323,6 +332,7 @@ class Odometry {
   FeatureWindow window_;  // the last registration.window scans' features, in the previous scan's frame
   SweepTimes prev_sweep_;  // the previous scan's, when it had times (sensor.deskew)
   bool have_prev_sweep_ = false;
+  SurfaceMap prev_surface_;  // the previous scan's surface (points.weight > 0)
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 

@@ -70,6 +70,16 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.partial_updates", c.registration.partial_updates);
   visit("registration.fallback_translation_sigma", c.registration.fallback_translation_sigma);
   visit("registration.fallback_rotation_sigma_deg", c.registration.fallback_rotation_sigma_deg);
+  visit("points.weight", c.points.weight);
+  visit("points.max_downsample", c.points.max_downsample);
+  visit("points.voxel", c.points.voxel);
+  visit("points.stride", c.points.stride);
+  visit("points.min_points", c.points.min_points);
+  visit("points.min_planarity", c.points.min_planarity);
+  visit("points.huber", c.points.huber);
+  visit("points.iterations", c.points.iterations);
+  visit("points.max_translation", c.points.max_translation);
+  visit("points.max_rotation_deg", c.points.max_rotation_deg);
 }
 
 const char* const kSolverNames[] = {"auto", "7L", "3L1P", "1L2P"};
