@@ -213,7 +213,7 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("points.max_downsample", int, 1, "the refinement runs only while downsample is at most this step "
                 "(the weight is measured at full resolution; sparser scans lose with it: docs/RESULTS.md)", 1, 1000),
     ConfigEntry("points.voxel", float, 1.0, "both scans are binned in cubes of this size (m): this scan's voxel "
-                "means are matched to the planes of the previous scan's voxels they fall in", 1e-3, 10.0),
+                "means are matched to the planes of the previous scan's voxels they fall in", 0.01, 10.0),
     ConfigEntry("points.stride", int, 1, "every n-th row and column of the range image is binned", 1, 64),
     ConfigEntry("points.min_points", int, 6, "points a voxel's plane needs", 3, 1000000),
     ConfigEntry("points.min_planarity", float, 0.1, "a voxel is flat enough when (l1 - l0) / l2 of its points' "

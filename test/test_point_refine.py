@@ -89,7 +89,7 @@ def test_reset_forgets_the_previous_surface():
     assert second.stats["points_refined"] and np.all(np.isfinite(second.pose))
 
 
-@pytest.mark.parametrize("name, value", [("points.weight", -1.0), ("points.voxel", 0.0),
+@pytest.mark.parametrize("name, value", [("points.weight", -1.0), ("points.voxel", 0.005),
                                          ("points.max_downsample", 0), ("points.iterations", 0),
                                          ("points.min_points", 2), ("points.huber", 0.0)])
 def test_bad_points_settings_are_refused_naming_them(name, value):

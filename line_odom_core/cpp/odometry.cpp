@@ -153,7 +153,7 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   window_ = FeatureWindow(config_.registration.window);
   const PointRefineOptions& pts = config_.points;
   if (!(pts.weight >= 0.0)) throw std::invalid_argument("points.weight: expected >= 0 (0: off)");
-  if (!(pts.voxel > 0.0)) throw std::invalid_argument("points.voxel: expected > 0 m");
+  if (!(pts.voxel >= 0.01)) throw std::invalid_argument("points.voxel: expected >= 0.01 m");
   if (pts.max_downsample < 1) throw std::invalid_argument("points.max_downsample: expected >= 1");
   if (pts.stride < 1) throw std::invalid_argument("points.stride: expected >= 1");
   if (!(pts.huber > 0.0)) throw std::invalid_argument("points.huber: expected > 0 m");

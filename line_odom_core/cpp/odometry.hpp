@@ -134,7 +134,7 @@ struct FrameStats {
   int deskewed_again = 0;  // times the sweep was deskewed again at the motion registered for it, and registered again
                            // (sensor.deskew_iterations)
   bool points_refined = false;  // the point-to-plane refinement (points.weight) moved the lines' estimate
-  int point_matches = 0;        // ... with this many of the scan's voxel points on a planar partner
+  int point_matches = 0;        // ... with this many of the scan's voxel means on a planar voxel of the previous scan
   StageMilliseconds ms;
 };
 

@@ -8,7 +8,7 @@ namespace line_odom {
 
 namespace {
 constexpr std::uint64_t kEmpty = std::numeric_limits<std::uint64_t>::max();
-constexpr std::int64_t kBias = 1 << 20;  // 21 bits per axis: +-1 million voxels
+constexpr std::int64_t kBias = 1 << 20;  // 21 bits per axis: +-1 million voxels (+-10 km at points.voxel's 1 cm)
 
 std::uint64_t mix(std::uint64_t k) {  // splitmix64's finalizer
   k ^= k >> 30;
