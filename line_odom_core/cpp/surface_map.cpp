@@ -81,7 +81,7 @@ void SurfaceMap::build(const RangeImage& image, double voxel, int stride) {
   table_.reset(image.points.size() / (8 * stride * stride) + 16);
   origins_.clear();
   means_.clear();
-  outer_.clear();
+  scatter_.clear();
   counts_.clear();
   for (int r = 0; r < image.rows; r += stride) {
     for (int c = 0; c < image.cols; c += stride) {
@@ -92,19 +92,19 @@ void SurfaceMap::build(const RangeImage& image, double voxel, int stride) {
       if (inserted) {
         origins_.push_back(p);
         means_.push_back(Vec3::Zero());
-        outer_.push_back(Mat3::Zero());
+        scatter_.push_back(Mat3::Zero());
         counts_.push_back(1);
         continue;
       }
       const Vec3 d = p - origins_[slot];
       means_[slot] += d;
-      outer_[slot].noalias() += d * d.transpose();
+      scatter_[slot].noalias() += d * d.transpose();
       ++counts_[slot];
     }
   }
   for (std::size_t i = 0; i < means_.size(); ++i) {
     const Vec3 offset = means_[i] / counts_[i];  // of the mean from the origin
-    outer_[i] = outer_[i] / counts_[i] - offset * offset.transpose();  // the scatter about the mean
+    scatter_[i] = scatter_[i] / counts_[i] - offset * offset.transpose();  // the scatter about the mean
     means_[i] = origins_[i] + offset;
   }
   planes_.assign(means_.size(), VoxelPlane{});
@@ -119,7 +119,7 @@ const VoxelPlane& SurfaceMap::plane(int index, int min_points, double min_planar
   VoxelPlane& out = planes_[index];
   if (counts_[index] < std::max(3, min_points)) return out;
   Eigen::SelfAdjointEigenSolver<Mat3> es;
-  es.computeDirect(outer_[index]);
+  es.computeDirect(scatter_[index]);
   const Vec3 l = es.eigenvalues();
   if (!(l(2) > 0.0) || (l(1) - l(0)) / l(2) < min_planarity) return out;
   out.normal = es.eigenvectors().col(0).normalized();

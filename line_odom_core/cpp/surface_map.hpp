@@ -52,7 +52,7 @@ class SurfaceMap {
   VoxelTable table_;
   std::vector<Vec3> origins_;  // each voxel's first point: the scatter is summed about it (no cancellation far out)
   std::vector<Vec3> means_;
-  std::vector<Mat3> outer_;
+  std::vector<Mat3> scatter_;  // while binning the summed outer products about the origin, then about the mean
   std::vector<int> counts_;
   std::vector<VoxelPlane> planes_;
   std::vector<std::uint8_t> plane_done_;
