@@ -47,7 +47,8 @@ class ScriptedEngine:
         self.prev = pose
         return _Result(pose, delta, self.cov, {"solver": "3L1P", "inliers": 321, "degenerate": False,
                                                "persistence": (1.0, 1.0, 0.987, 0.5, 0.25, 0.0),
-                                               "ms": {"total": 12.5}})
+                                               "points_refined": True, "point_matches": 2345,
+                                               "ms": {"total": 12.5, "points": 2.5}})
 
     def register_points(self, xyz, stamp, ring=None):
         assert xyz.shape[1] == 3
@@ -180,6 +181,8 @@ def test_malformed_frames_are_counted_and_next_good_frame_processed():
     assert diag.status[0].level == DiagnosticStatus.WARN and "malformed" in diag.status[0].message  # WARN
     assert values["solver"] == "3L1P" and values["inliers"] == "321" and values["ms.total"] == "12.500"
     assert values["persistence"] == "1.00 1.00 0.99 0.50 0.25 0.00"  # x y z rx ry rz share of the last motion
+    # the point-to-plane refinement (points.*): whether it moved the frame, on how many voxel means, at what cost
+    assert values["points_refined"] == "True" and values["point_matches"] == "2345" and values["ms.points"] == "2.500"
     diag = proc.diagnostics()  # the next period has no new problem
     assert diag.status[0].level == DiagnosticStatus.OK
 
