@@ -1,6 +1,7 @@
 #include "surface_map.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -69,7 +70,8 @@ std::int32_t VoxelTable::find(std::uint64_t key) const {
 
 std::uint64_t SurfaceMap::key_of(const Vec3& p) const {
   const auto field = [this](double v) {
-    const auto cell = static_cast<std::int64_t>(std::floor(v / voxel_));
+    constexpr double kFarthest = 1e15;  // cells: a cast beyond int64 would be undefined (points are finite, not bounded)
+    const auto cell = static_cast<std::int64_t>(std::clamp(std::floor(v / voxel_), -kFarthest, kFarthest));
     return static_cast<std::uint64_t>((cell + kBias) & ((std::int64_t{1} << 21) - 1));
   };
   return field(p.x()) << 42 | field(p.y()) << 21 | field(p.z());
