@@ -51,7 +51,7 @@ class SurfaceMap {
   double voxel_ = 0.5;
   VoxelTable table_;
   std::vector<Vec3> origins_;  // each voxel's first point: the scatter is summed about it (no cancellation far out)
-  std::vector<Vec3> means_;
+  std::vector<Vec3> means_;    // while binning the summed offsets from the origin
   std::vector<Mat3> scatter_;  // while binning the summed outer products about the origin, then about the mean
   std::vector<int> counts_;
   std::vector<VoxelPlane> planes_;
