@@ -32,9 +32,6 @@ std::uint64_t segments_fingerprint(const std::vector<LineFeature>& lines) {
   return h;
 }
 
-
-constexpr double kPi = 3.14159265358979323846;
-
 double deg2rad(double deg) { return deg * kPi / 180.0; }
 
 // Segments are bucketed in a dense voxel grid over their bounding box by points sampled along them. With

@@ -9,7 +9,7 @@ namespace {
 int nearest_cluster(const Vec3& normal, const std::array<Vec3, 3>& directions) {
   if (normal.isZero()) return -1;
   int best = -1;
-  double best_cos = std::cos(45.0 * 3.14159265358979323846 / 180.0);
+  double best_cos = std::cos(45.0 * kPi / 180.0);
   for (int k = 0; k < 3; ++k) {
     const double c = std::abs(normal.dot(directions[k]));
     if (c > best_cos) best_cos = c, best = k;

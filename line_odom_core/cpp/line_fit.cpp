@@ -25,7 +25,7 @@ namespace line_odom {
 
 namespace {
 
-constexpr double kDeg = 3.14159265358979323846 / 180.0;
+constexpr double kDeg = kPi / 180.0;
 
 // PointMoments with only the 6 distinct entries of the symmetric sum of outer products (the same sums,
 // entry by entry, in less memory and work: the prefix sums below hold one per point of a scan line).

@@ -12,7 +12,7 @@ namespace line_odom {
 
 namespace {
 
-constexpr double kDeg = 3.14159265358979323846 / 180.0;
+constexpr double kDeg = kPi / 180.0;
 
 // The crossings of each line, packed contiguously in ascending crossing order (the robust mean reads them
 // three times).

@@ -367,7 +367,7 @@ RefineOptions refine_options_from(const MotionOptions& o) {
   RefineOptions r;
   r.iterations = o.refine_iterations;
   r.line_threshold = o.inlier_threshold;
-  r.plane_angle_threshold = o.plane_angle_threshold_deg * M_PI / 180.0;
+  r.plane_angle_threshold = o.plane_angle_threshold_deg * kPi / 180.0;
   r.plane_distance_threshold = o.plane_distance_threshold;
   r.huber_delta = o.huber_delta > 0.0 ? o.huber_delta : o.inlier_threshold;
   r.min_line_sine = kMinLineSine;

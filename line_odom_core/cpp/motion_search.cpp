@@ -19,7 +19,6 @@ namespace line_odom {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kWeakShiftStep = 8.0;  // inlier thresholds between the shifts of a first motion's scan (the
                                         // support peak of KITTI 04's forward motion: ~10 thresholds wide)
 constexpr double kSameAxisCosine = 0.999;  // a direction within 2.6 deg of a sensor axis is scanned with it

@@ -21,7 +21,6 @@ namespace line_odom {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kHeldAxisCosine = 0.9;  // an axis this close to the held directions counts as held
 constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer than this (and the inlier threshold)
                                                       // are one

@@ -15,7 +15,7 @@ namespace line_odom {
 
 namespace {
 
-constexpr double kDeg = 3.14159265358979323846 / 180.0;
+constexpr double kDeg = kPi / 180.0;
 
 struct PlaneEstimate {
   Vec3 n = Vec3::UnitZ();

@@ -7,10 +7,6 @@
 
 namespace line_odom {
 
-namespace {
-constexpr double kPi = 3.14159265358979323846;
-}
-
 PointRefineResult refine_with_points(const SurfaceMap& scan, SurfaceMap& previous, const RigidTransform& T,
                                      const Mat6& covariance, const PointRefineOptions& options) {
   PointRefineResult out;

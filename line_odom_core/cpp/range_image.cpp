@@ -17,7 +17,6 @@ namespace line_odom {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
 
 // Median elevation (deg) of each HDL-64E ring over the 30 shared KITTI scans, rings recovered from the

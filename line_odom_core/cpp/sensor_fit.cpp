@@ -8,7 +8,7 @@
 namespace line_odom {
 namespace {
 
-constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
+constexpr double kDegPerRad = 180.0 / kPi;
 
 double percentile(std::vector<double>* values, double share) {
   if (values->empty()) return 0.0;

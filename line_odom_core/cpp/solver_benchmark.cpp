@@ -15,7 +15,6 @@
 namespace line_odom {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 class InstanceGenerator {
  public:

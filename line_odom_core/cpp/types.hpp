@@ -13,6 +13,8 @@ using Mat3 = Eigen::Matrix3d;
 using Mat4 = Eigen::Matrix4d;
 using Mat6 = Eigen::Matrix<double, 6, 6>;
 
+constexpr double kPi = 3.14159265358979323846;
+
 struct RigidTransform {
   Mat3 R = Mat3::Identity();
   Vec3 t = Vec3::Zero();

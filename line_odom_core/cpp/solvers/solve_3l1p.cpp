@@ -16,7 +16,6 @@
 namespace line_odom {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kDegenerateDeterminant = 1e-10;  // max |det| samples relative to its natural scale
 constexpr double kMinPairDeterminant = 1e-12;     // |B_i C_j - B_j C_i| (dimensionless)
 
