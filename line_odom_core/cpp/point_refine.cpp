@@ -31,7 +31,7 @@ PointRefineResult refine_with_points(const SurfaceMap& scan, SurfaceMap& previou
       const double r = plane.normal.dot(q - previous.mean(partner));
       Vec6 J;
       J << plane.normal, q.cross(plane.normal);
-      const double w = std::abs(r) <= options.huber ? 1.0 : options.huber / std::abs(r);
+      const double w = huber_weight(std::abs(r), options.huber);
       H.noalias() += w * J * J.transpose();
       g.noalias() += (w * r) * J;
       ++matched;

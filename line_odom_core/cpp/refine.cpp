@@ -25,8 +25,6 @@ Mat3 skew(const Vec3& w) {
 constexpr double kConvergedTranslation = 1e-4;  // m: a step this small ends the iteration
 constexpr double kConvergedRotation = 1e-5;     // rad
 
-double huber_weight(double r_abs, double delta) { return r_abs <= delta ? 1.0 : delta / r_abs; }
-
 // Normal equations of the gated residuals at T.
 struct NormalEquations {
   Mat6 H = Mat6::Zero();

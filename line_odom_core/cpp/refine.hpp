@@ -44,6 +44,9 @@ struct RefineResult {
   Mat6 held_sensitivity = Mat6::Zero();
 };
 
+// IRLS weight of a residual of size r_abs under a Huber loss with knee delta.
+inline double huber_weight(double r_abs, double delta) { return r_abs <= delta ? 1.0 : delta / r_abs; }
+
 // Motion of a left perturbation: exp(xi) as a rigid transform, xi = (v, w).
 RigidTransform se3_exp(const Vec6& xi);
 
