@@ -207,15 +207,16 @@ _ENTRIES: list[ConfigEntry] = [
                 "reported when the prediction is held", 0.0, 180.0),
     # --- point-to-plane refinement (beyond the paper; docs/RESULTS.md, session 18) ---
     ConfigEntry("points.weight", float, 0.0, "information (1/m^2) of one point-to-plane residual of this scan's "
-                "points against the previous scan's surface, refined jointly with the lines' estimate (as a Gaussian "
-                "of its covariance) after the registration; dense scans only: on sparse ones the surface's normals "
-                "are few and poor (KITTI at 1/36 loses). 0 = off (the paper's method)", 0.0, 1e6),
+                "voxel means against the previous scan's voxel planes, refined jointly with the lines' estimate (as a "
+                "Gaussian of its covariance) after the registration; dense scans only: on sparse ones the voxels' "
+                "planes are poor (KITTI at 1/36 loses). 0 = off (the paper's method)", 0.0, 1e6),
     ConfigEntry("points.max_downsample", int, 1, "the refinement runs only while downsample is at most this step "
                 "(the weight is measured at full resolution; sparser scans lose with it: docs/RESULTS.md)", 1, 1000),
     ConfigEntry("points.voxel", float, 1.0, "both scans are binned in cubes of this size (m): this scan's voxel "
                 "means are matched to the planes of the previous scan's voxels they fall in", 0.01, 10.0),
     ConfigEntry("points.stride", int, 1, "every n-th row and column of the range image is binned", 1, 64),
-    ConfigEntry("points.min_points", int, 6, "points a voxel's plane needs", 3, 1000000),
+    ConfigEntry("points.min_points", int, 6, "points a voxel needs: for its plane (previous scan) and for its mean "
+                "(this scan)", 3, 1000000),
     ConfigEntry("points.min_planarity", float, 0.1, "a voxel is flat enough when (l1 - l0) / l2 of its points' "
                 "scatter's eigenvalues reaches this", 0.0, 1.0),
     ConfigEntry("points.huber", float, 0.1, "robust loss width of the point-to-plane residuals (m)", 1e-4, 10.0),

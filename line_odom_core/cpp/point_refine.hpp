@@ -14,7 +14,7 @@ struct PointRefineOptions {
   int max_downsample = 1;       // runs only while the scans are downsampled by at most this step
   double voxel = 1.0;           // m: both scans binned in cubes of this size
   int stride = 1;               // of the range image's rows and columns binned
-  int min_points = 6;           // a voxel's plane needs this many points
+  int min_points = 6;           // a voxel's plane, and a voxel's mean, needs this many points
   double min_planarity = 0.1;   // (l1 - l0) / l2 of their scatter
   double huber = 0.1;           // m
   int iterations = 10;
