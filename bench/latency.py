@@ -5,6 +5,7 @@
     .venv/bin/python bench/latency.py --repeat 3 --kiss-threads 1
     .venv/bin/python bench/latency.py --threads 2       # line_odom's line fit and line-pair search on two threads
     .venv/bin/python bench/latency.py --set registration.window=3   # any engine setting
+    .venv/bin/python bench/latency.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
 
 Stage times come from the engine's own stopwatch (stats["ms"]); "call" is the wall time of the Python call
 (numpy in, result out). The first frame of each run is left out (nothing to register against). KISS-ICP runs
@@ -17,7 +18,9 @@ the ratio within one run.
 At full resolution the presets fit and register the lines of every 4th row and column of a KITTI scan
 (registration.max_lines), each fitted to every point of its row or column. The row "all" runs the same frames with
 registration.max_lines = 0: every row and column fitted and registered. Its line-fitting time is the issue's "line
-fitting on a full KITTI frame".
+fitting on a full KITTI frame". The "16b" row keeps every 4th of KITTI's 64 lasers with all their azimuth steps,
+through the vlp16 preset, as bench/accuracy.py's rows of that name (the 16-beam LiDAR this package is for; no goal in
+the issue): KISS-ICP gets the same points.
 """
 from __future__ import annotations
 
@@ -32,7 +35,7 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import line_odom_core  # noqa: E402
-from accuracy import depth_points, kiss_odometry, overrides_and_kiss  # noqa: E402
+from accuracy import beams_config, depth_points, kiss_odometry, kitti_beams, overrides_and_kiss  # noqa: E402
 from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402
 
 ALL_LINES = 0  # the "level" of the full-resolution run with registration.max_lines = 0
@@ -85,6 +88,23 @@ def time_lidar(frames_by_seq, level, kiss, kiss_threads, repeat, overrides=None)
     return stage_ms, call_ms, kiss_ms
 
 
+def time_beams(seqs, beams, kiss, kiss_threads, repeat, overrides=None):
+    """KITTI kept to `beams` of its lasers (kitti_beams), registered with the vlp16 preset (beams_config)."""
+    stage_ms = {s: [] for s in (*STAGES, "steady", "first", "fitted", "registered")}
+    call_ms, kiss_ms = [], []
+    frames_by_seq = []
+    for seq in seqs:
+        data = kitti_sequence(seq)
+        frames_by_seq.append([(*kitti_beams(data, i, beams), float(data.times[i])) for i in range(len(data))])
+    for _ in range(repeat):
+        for frames in frames_by_seq:
+            odom = line_odom_core.Odometry(beams_config(beams, overrides or {}))
+            kiss_odom = kiss_odometry(100.0, kiss_threads) if kiss else None
+            time_frames(lambda f: odom.register_points(f[0], f[2], ring=f[1]), kiss_odom,
+                        lambda f: f[0], frames, stage_ms, call_ms, kiss_ms)
+    return stage_ms, call_ms, kiss_ms
+
+
 def time_depth(level, frames, kiss, kiss_threads, repeat, overrides=None):
     data = tum_sequence(frames)
     depths = [(data.depth(i), float(data.stamps[i])) for i in range(len(data))]
@@ -128,7 +148,9 @@ def goal_text(name, level, stage_ms, kiss_ms):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--kitti", nargs="+", default=["00", "04", "07"])
-    parser.add_argument("--kitti-levels", nargs="+", type=int, default=[1, 6, 8])
+    parser.add_argument("--kitti-levels", nargs="*", type=int, default=[1, 6, 8])
+    parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16], choices=(8, 16, 32),
+                        help="also KITTI kept to this many of its 64 lasers, through the vlp16 preset (none: skip)")
     parser.add_argument("--tum-levels", nargs="+", type=int, default=[1, 10])
     parser.add_argument("--tum-frames", type=int, default=300)  # all of fr1/xyz, as bench/accuracy.py
     parser.add_argument("--repeat", type=int, default=1)
@@ -164,6 +186,10 @@ def main(argv=None) -> int:
                                        {**threads, "registration.max_lines": 0})
                 cases.append(("kitti", ALL_LINES, all_lines))
                 print_row(*cases[-1])
+        for beams in args.kitti_beams:
+            measured = time_beams(args.kitti, beams, kiss, args.kiss_threads, args.repeat, threads)
+            cases.append(("kitti", -beams, measured))
+            print_row(*cases[-1])
     if args.only in (None, "tum"):
         for level in args.tum_levels:
             cases.append(("tum", level, time_depth(level, args.tum_frames, kiss, args.kiss_threads, args.repeat,
@@ -174,7 +200,8 @@ def main(argv=None) -> int:
 
 def print_row(name, level, measured):
     stage_ms, call_ms, kiss_ms = measured
-    res = "all" if level == ALL_LINES else "full" if level == 1 else f"1/{level * level}"
+    res = ("all" if level == ALL_LINES else f"{-level}b" if level < 0 else "full" if level == 1 else
+           f"1/{level * level}")  # level -n: n of the lasers
     cells = " ".join(f"{np.mean(stage_ms[s]):10.2f}" for s in STAGES)
     p50, p95 = np.percentile(stage_ms["total"], [50, 95])
     kiss = f"{np.mean(kiss_ms):8.1f} {steady_ms(stage_ms) / np.mean(kiss_ms):6.2f}" if kiss_ms else \

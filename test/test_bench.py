@@ -1,6 +1,7 @@
 """The benchmarks still run and print their tables (bench/ is not imported by the package): a short TUM run of
 bench/accuracy.py with its ground-truth clock table, the paired-difference table on synthetic rows (KISS-ICP is a
-benchmark-only dependency), and bench/gt_consistency.py's constancy and scans'-own-motion tables on KITTI 00 and 07."""
+benchmark-only dependency), bench/gt_consistency.py's constancy and scans'-own-motion tables on KITTI 00 and 07, and
+bench/latency.py's 16-laser row."""
 import subprocess
 import sys
 from pathlib import Path
@@ -69,3 +70,13 @@ def test_gt_consistency_registers_the_scans_from_the_ground_truth(gt_consistency
     # for 00 (half of KISS-ICP's 0.1957 m), which asks for less error than the scans' own motion has.
     gt_forward, forward, rpe = row("00")
     assert gt_forward - forward > 0.08 and rpe > 0.0979
+
+
+def test_latency_prints_the_16_laser_row():
+    out = _run("bench/latency.py", "--only", "kitti", "--kitti", "07", "--kitti-levels", "--kitti-beams", "16",
+               "--no-kiss")
+    row = next(line for line in out.splitlines() if line.startswith("kitti 16b"))
+    frames = int(row.split("|")[0].split()[2])
+    steady = float(row.split("|")[1].split()[10])
+    registered = int(row.split("|")[1].split()[13].split("/")[1])
+    assert frames == 9 and steady > 0.0 and 500 < registered < 3000  # 07 with 16 lasers: ~1,300 lines a scan
