@@ -53,6 +53,9 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("sensor.deskew_tolerance", float, 0.005, "the previous scan is deskewed again at the current "
                 "velocity when the two corrections put a point 20 m away further apart than this (m), so both "
                 "scans of a registration are corrected alike", 0.0, 10.0),
+    ConfigEntry("sensor.deskew_trend", int, 3, "a sweep is corrected at the pair's velocity plus how much faster it "
+                "moves than the previous sweep: the slope of the last n frames' registered velocities (frames; 0: "
+                "off, both scans of a pair at one velocity; else 3 to 20)", 0, 20),
     ConfigEntry("sensor.deskew_iterations", int, 1, "once registered, a sweep whose registered velocity moves a point "
                 "20 m away further than deskew_tolerance from where the prediction's did is deskewed again at it "
                 "(its features and the previous scan's moved) and registered again from the estimate, at most "

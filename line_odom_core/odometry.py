@@ -155,7 +155,9 @@ class Odometry:
         before it), or None. With `sensor.deskew` (on in the LiDAR presets) the sweep is corrected for the sensor's
         motion during it at the predicted velocity, into the sensor frame at `stamp`; the previous scan is corrected
         again when it was corrected at a velocity that differs by more than `sensor.deskew_tolerance`, so that both
-        scans of a registration are corrected alike (stats["deskewed"], stats["previous_deskewed_again"]). Points before
+        scans of a registration are corrected alike (stats["deskewed"], stats["previous_deskewed_again"]), this one
+        also by how much faster it moves than the previous sweep, the trend of the last `sensor.deskew_trend`
+        registered velocities. Points before
         the stamp (a sweep stamped at its end) moved at this frame's motion: once registered, both scans are corrected
         again at the registered velocity and the frame registered again from the estimate, up to
         `sensor.deskew_iterations` times (stats["deskewed_again"]). sweep_rate (with time): the sensor's angular

@@ -162,6 +162,9 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
     throw std::invalid_argument("points.min_planarity: expected 0 to 1");
   if (!(pts.max_translation >= 0.0) || !(pts.max_rotation_deg >= 0.0))
     throw std::invalid_argument("points.max_translation, points.max_rotation_deg: expected >= 0");
+  const int trend = config_.sensor.deskew_trend;
+  if (trend != 0 && (trend < 3 || trend > 20))
+    throw std::invalid_argument("sensor.deskew_trend: expected 0 (off) or 3 to 20 frames, got " + std::to_string(trend));
   if (config_.sensor.deskew_iterations < 0 || config_.sensor.deskew_iterations > 10)
     throw std::invalid_argument("sensor.deskew_iterations: expected 0 (deskewed at the prediction only) to 10, got " +
                                 std::to_string(config_.sensor.deskew_iterations));
@@ -189,6 +192,7 @@ void Odometry::reset(const RigidTransform& pose) {
   window_.clear();
   prev_sweep_ = SweepTimes{};
   have_prev_sweep_ = false;
+  registered_velocities_.clear();
   prev_surface_ = SurfaceMap{};
 }
 
@@ -286,6 +290,7 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
 
   Stopwatch deskew_watch;
   const bool previous_again = have_prev_sweep_ && deskew_previous_again(sweep.velocity);
+  if (sweep.velocity.moving()) sweep.velocity = with_trend(sweep.velocity);
   deskew_image(&image, time, sweep.velocity);
   const double deskew_ms = deskew_watch.ms();
   FrameResult result = register_image(image, stamp, watch.ms(), step, guess, rotation_guess, &sweep);
@@ -338,16 +343,40 @@ bool Odometry::corrected_alike(const SweepVelocity& a, const SweepVelocity& b, d
   return deskew_difference(a, b, first, last, kLever) <= config_.sensor.deskew_tolerance;
 }
 
+// Two scans corrected at one velocity differ from their sweeps by the change of velocity between them (first order);
+// adding the change the recent frames show leaves its change (second order). The velocity itself stays common to
+// the pair: a frame's error in it moves both alike (docs/NODE.md, "Motion distortion").
+SweepVelocity Odometry::with_trend(SweepVelocity velocity) const {
+  const int n = std::min<int>(config_.sensor.deskew_trend, static_cast<int>(registered_velocities_.size()));
+  if (n < 3) return velocity;
+  const double mean_age = (n - 1) / 2.0;
+  Vec3 mean_rate = Vec3::Zero(), mean_speed = Vec3::Zero();
+  for (int i = 0; i < n; ++i) mean_rate += registered_velocities_[i].rate, mean_speed += registered_velocities_[i].speed;
+  mean_rate /= n, mean_speed /= n;
+  Vec3 rate_slope = Vec3::Zero(), speed_slope = Vec3::Zero();
+  double spread = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const double x = mean_age - i;  // frames after the mean age (the newest, i = 0, is the latest)
+    rate_slope += x * (registered_velocities_[i].rate - mean_rate);
+    speed_slope += x * (registered_velocities_[i].speed - mean_speed);
+    spread += x * x;
+  }
+  velocity.speed += speed_slope / spread;
+  if (!velocity.measured_rate) velocity.rate += rate_slope / spread;
+  return velocity;
+}
+
 int Odometry::deskew_at_registered(ScanFeatures* features, SweepTimes* sweep, double dt,
                                    const RigidTransform& prediction, PassOutcome* outcome, FrameStats* st) {
   int again = 0;
   if (!(std::isfinite(dt) && dt > 0.0) || !(sweep->first < 0.0)) return again;
   while (again < config_.sensor.deskew_iterations && registered_in_full(*outcome)) {
     const SweepVelocity registered = keeping_measured_rate(sweep->velocity, SweepVelocity::over(outcome->best, dt));
-    if (corrected_alike(sweep->velocity, registered, sweep->first, std::min(sweep->last, 0.0))) break;
+    const SweepVelocity own = with_trend(registered);
+    if (corrected_alike(sweep->velocity, own, sweep->first, std::min(sweep->last, 0.0))) break;
     Stopwatch watch;
-    move_features(features, *sweep, registered);
-    sweep->velocity = registered;
+    move_features(features, *sweep, own);
+    sweep->velocity = own;
     if (have_prev_sweep_ && deskew_previous_again(registered)) st->previous_deskewed_again = true;
     st->ms.deskew += watch.ms();
     ++again;
@@ -733,6 +762,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     have_velocity_ = false;
     last_delta_ = RigidTransform::identity();
     persistence_.interrupt();
+    registered_velocities_.clear();
   }
   // A guess stands for the velocity: registered from it, fused with it, degenerate directions held at it.
   const bool guessed = guess != nullptr && frames_ > 0;
@@ -961,6 +991,11 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     else
       persistence_.interrupt();
     last_dt_ = (std::isfinite(dt) && dt > 0.0) ? dt : last_dt_;
+    if (config_.sensor.deskew_trend > 0 && std::isfinite(dt) && dt > 0.0) {
+      registered_velocities_.push_front(SweepVelocity::over(result.delta, dt));
+      while (static_cast<int>(registered_velocities_.size()) > config_.sensor.deskew_trend)
+        registered_velocities_.pop_back();
+    }
     have_velocity_ = true;
   }
 

@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <string>
 #include <utility>
@@ -70,6 +71,8 @@ struct SensorOptions {
   RangeLimits limits;
   bool deskew = true;              // points with times: moved into the frame at the stamp (deskew.hpp)
   double deskew_tolerance = 0.005;  // m: the previous scan is deskewed again when the velocity changed by more
+  int deskew_trend = 3;             // frames: a sweep is corrected at the pair's velocity plus the change from the
+                                    // previous sweep's, the slope of the last n registered velocities (0: off)
   int deskew_iterations = 1;        // a sweep with times before its stamp (stamped at its end) is deskewed again at the
                                     // motion registered for it, when that differs by more than deskew_tolerance, and
                                     // registered again, at most this many times; 0: at the prediction only
@@ -226,6 +229,9 @@ class Odometry {
   // `velocity` puts them: moves its features to where `velocity` would have put them (each line's ends by the
   // difference at their columns' times, planes at mid-sweep). True when it did.
   bool deskew_previous_again(const SweepVelocity& velocity);
+  // `velocity` plus how much faster this sweep moves than the previous one (sensor.deskew_trend): the least-squares
+  // slope per frame of the last registered velocities; the rate's only when it is not a gyro's over the sweep.
+  SweepVelocity with_trend(SweepVelocity velocity) const;
   // Whether sweep times [first, last] deskewed at `a` and at `b` put a point 20 m away within
   // sensor.deskew_tolerance of each other.
   bool corrected_alike(const SweepVelocity& a, const SweepVelocity& b, double first, double last) const;
@@ -331,6 +337,7 @@ class Odometry {
   ScanFeatures prev_coarse_features_;
   FeatureWindow window_;  // the last registration.window scans' features, in the previous scan's frame
   SweepTimes prev_sweep_;  // the previous scan's, when it had times (sensor.deskew)
+  std::deque<SweepVelocity> registered_velocities_;  // of the last sensor.deskew_trend frames, newest first
   bool have_prev_sweep_ = false;
   SurfaceMap prev_surface_;  // the previous scan's surface (points.weight > 0)
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it

@@ -29,6 +29,7 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("sensor.deskew", c.sensor.deskew);
   visit("sensor.deskew_tolerance", c.sensor.deskew_tolerance);
   visit("sensor.deskew_iterations", c.sensor.deskew_iterations);
+  visit("sensor.deskew_trend", c.sensor.deskew_trend);
   // FEATURE_SETTINGS
   visit("candidates.max_distance", c.candidates.max_distance);
   visit("candidates.min_line_angle_deg", c.candidates.min_line_angle_deg);
