@@ -7,6 +7,7 @@
     .venv/bin/python bench/accuracy.py --only sim --sim-sensor vlp16   # the same street with a 16-beam LiDAR
     .venv/bin/python bench/accuracy.py --only sim --sim-distortion     # sweeps cast while moving: deskew on / off
     .venv/bin/python bench/accuracy.py --only sim --sim-distortion --sim-stamp end --no-kiss   # stamped at the sweep's end
+    .venv/bin/python bench/accuracy.py --only sim --sim-distortion --sim-speed-swing 0.5 4   # speed 5-15 m/s every 4 s
     .venv/bin/python bench/accuracy.py --seeds 8        # + line_odom's spread over RANSAC seeds 0-7
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
 
@@ -305,17 +306,21 @@ def print_paired(rows: list[Row]) -> None:
 SIM_PRESETS = {"hdl64": "kitti_hdl64", "vlp16": "vlp16", "os128": "ouster_os128"}
 
 
-def simulated_drive(frames: int, sensor: str, distorted: str):
+def simulated_drive(frames: int, sensor: str, distorted: str, swing=None):
     """The simulated street (10 m/s, 10 Hz, 1 cm range noise; `distorted` non-empty: sweeps cast while the sensor
-    moves), its ground-truth poses and the sensor's preset; prints the drive's heading line."""
+    moves; `swing` (share, period s): the speed swinging by +-that share over that period instead of +-10 % over
+    15-40 s), its ground-truth poses and the sensor's preset; prints the drive's heading line."""
     from line_odom import sim
 
-    run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor, motion_distortion=bool(distorted))
+    share, period = swing if swing else (0.1, None)
+    run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor, motion_distortion=bool(distorted),
+                   speed_variation=share, speed_period=period)
     gt = np.array(run.trajectory.poses)
     length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
     preset = SIM_PRESETS[sensor]
-    print(f"\nsimulated street drive{distorted}, {sensor} ({preset}): {frames} scans, {length:.0f} m (KITTI devkit "
-          f"metric over 100..800 m segments when >= 100 m)")
+    swinging = f", speed 10 m/s +-{100 * share:.0f} % every {period:g} s" if swing else ""
+    print(f"\nsimulated street drive{distorted}{swinging}, {sensor} ({preset}): {frames} scans, {length:.0f} m (KITTI "
+          f"devkit metric over 100..800 m segments when >= 100 m)")
     return run, gt, preset
 
 
@@ -325,13 +330,13 @@ def sim_configs(preset: str, sensor: str, levels, overrides: dict):
         yield line_odom_core.load_config(preset, {**({} if level is None else {"downsample": level}), **overrides})
 
 
-def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64") -> None:
+def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64", swing=None) -> None:
     """Simulated street drive (line_odom.sim: 10 m/s, 10 Hz, 1 cm range noise), KITTI devkit metric. HDL-64 with
     kitti_hdl64 at each of `levels`; VLP-16 / OS-128 with their own presets at the presets' resolution (the issue's
     goals are for the HDL-64 rows)."""
     from line_odom.metrics import kitti_errors
 
-    run, gt, preset = simulated_drive(frames, sensor, "")
+    run, gt, preset = simulated_drive(frames, sensor, "", swing)
     print(f"{'res':5} | {'line_odom t_err [%]':>20} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | "
           f"{'KISS-ICP t_err [%]':>19} {'r_err [deg/m]':>14} {'RPE t [m]':>10} {'ms':>6} | goal", flush=True)
     for config in sim_configs(preset, sensor, levels, overrides):
@@ -371,7 +376,7 @@ def run_sim(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str
 
 
 def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), sensor: str = "hdl64",
-                      stamp_at: str = "start") -> None:
+                      stamp_at: str = "start", swing=None) -> None:
     """The simulated street drive with sweeps cast while the sensor moves (each column from the pose at its firing
     time, 10 m/s: up to 1 m across a sweep): line_odom given each point's time (sensor.deskew) and without it,
     KISS-ICP with its deskew on (the same times, as fractions of the sweep) and off, on the same points.
@@ -381,7 +386,7 @@ def run_sim_distorted(kiss: bool, overrides: dict, frames: int, levels=(1, 6), s
 
     end = stamp_at == "end"
     run, gt, preset = simulated_drive(frames, sensor, " with motion-distorted sweeps" +
-                                      (", stamped at the sweep's end" if end else ""))
+                                      (", stamped at the sweep's end" if end else ""), swing)
     period = 1.0 / run.sensor.rate_hz
     if end:
         kiss = False
@@ -472,6 +477,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sim-stamp", choices=("start", "end"), default="start",
                         help="with --sim-distortion: each scan stamped at its sweep's start (as simulated) or end "
                              "(line_odom only)")
+    parser.add_argument("--sim-speed-swing", nargs=2, type=float, metavar=("SHARE", "PERIOD"),
+                        help="the simulated drive's speed swinging by +-SHARE of 10 m/s every PERIOD s (default: "
+                             "+-0.1 over 15-40 s), e.g. 0.5 4: 5-15 m/s, up to 7.9 m/s^2")
     parser.add_argument("--seeds", type=int, default=1,
                         help="also run line_odom with RANSAC seeds 1..N-1 and print the spread (nine frame pairs "
                              "per KITTI row: one sample can move a mean)")
@@ -509,9 +517,10 @@ def main(argv=None) -> int:
             print_seed_spread(rows, args.seeds, args, overrides)
     if args.sim:
         if args.sim_distortion:
-            run_sim_distorted(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor, args.sim_stamp)
+            run_sim_distorted(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor, args.sim_stamp,
+                              args.sim_speed_swing)
         else:
-            run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor)
+            run_sim(kiss, overrides, args.sim_frames, tuple(args.sim_levels), args.sim_sensor, args.sim_speed_swing)
     return 0
 
 

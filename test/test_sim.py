@@ -505,3 +505,21 @@ def test_simulate_with_motion_distortion_and_pose_interpolation():
     assert frames[1].data.time.max() > 0.09
     np.testing.assert_allclose(frames[1].data.poses[0][:3, 3], run.trajectory.pose_at(
         frames[1].stamp + 0.5 * (frames[1].data.blocks[0][1]) / run.sensor.shape[1] / 10.0)[:3, 3], atol=1e-6)
+
+
+def test_the_street_speed_can_swing():
+    run = sim.make("street", frames=60, seed=0, speed_variation=0.5, speed_period=4.0)
+    step = np.linalg.norm(np.diff(np.array(run.trajectory.poses)[:, :3, 3], axis=0), axis=1)
+    assert 0.45 < step.min() < 0.55 and 1.45 < step.max() < 1.55  # 10 m/s +-50 % at 10 Hz
+    assert np.argmax(step) - np.argmin(step) in (-20, 20)  # half of the 4 s period apart
+    default = np.array(sim.make("street", frames=20, seed=0).trajectory.poses)
+    same = np.array(sim.make("street", frames=20, seed=0, speed_variation=0.1).trajectory.poses)
+    np.testing.assert_array_equal(default, same)
+
+
+@pytest.mark.parametrize("kw, match", [({"speed_variation": 1.0}, "speed_variation"),
+                                       ({"speed_variation": -0.1}, "speed_variation"),
+                                       ({"speed_period": 0.0}, "speed_period")])
+def test_a_bad_speed_swing_is_refused_naming_it(kw, match):
+    with pytest.raises(ValueError, match=match):
+        sim.make("street", frames=5, seed=0, **kw)

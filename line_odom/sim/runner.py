@@ -66,14 +66,15 @@ def _sensor(sensor, noise_std, seed):
 
 def make(kind: str = "street", frames: int = 100, seed: int = 0, *, sensor=None, rate_hz: float | None = None,
          speed: float | None = None, noise_std: float | None = None, motion_distortion: bool = False,
-         **scene_kw) -> Simulation:
+         speed_variation: float = 0.1, speed_period: float | None = None, **scene_kw) -> Simulation:
     """Build a run of ``frames`` frames. ``street``: HDL-64 on a car at ``speed`` (10 m/s) and ``rate_hz`` (10 Hz)
     through ``street_scene`` (1 km long unless the drive needs more, so runs of up to 1 km share their street for a
     seed). ``room``: depth camera (320x240 ``DepthCamera()`` unless ``sensor`` says otherwise) on a handheld path
     at 30 Hz. Degenerate kinds (``empty``, ``ground``, ``corridor``, ``wall``, ``far``): the sensor drives straight
     along +x at ``speed`` (10 m/s; 0 = standing still). ``noise_std`` applies to preset sensors (default: none).
     ``motion_distortion``: LiDAR sweeps are cast while the sensor moves (see ``Lidar.scan(T_end=...)``); the pose
-    of a frame is then the pose at its stamp, when the sweep starts."""
+    of a frame is then the pose at its stamp, when the sweep starts. ``speed_variation``, ``speed_period``
+    (``street``): the speed swings by +-that share of it over that many seconds (default +-10 % over 15-40 s)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     if int(frames) != frames or frames < 1:
@@ -84,11 +85,11 @@ def make(kind: str = "street", frames: int = 100, seed: int = 0, *, sensor=None,
     sensor = _sensor(sensor, noise_std, seed)
     rate = float(rate_hz) if rate_hz is not None else (30.0 if kind == "room" else 10.0)
     v = 10.0 if speed is None else float(speed)
-    travel = 1.1 * v * (frames - 1) / rate
+    travel = (1.0 + max(0.1, speed_variation)) * v * (frames - 1) / rate
     if kind == "street":
         length = scene_kw.pop("length_m", max(1000.0, 1000.0 * math.ceil(travel / 1000.0)))
         scene = scenes.street_scene(length_m=length, seed=seed, **scene_kw)
-        traj = street_drive(scene, frames, rate, v, seed)
+        traj = street_drive(scene, frames, rate, v, seed, speed_variation=speed_variation, speed_period=speed_period)
     elif kind == "room":
         scene = scenes.room_scene(seed=seed, **scene_kw)
         traj = handheld_path(scene, frames, rate, seed)

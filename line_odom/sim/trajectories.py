@@ -99,9 +99,11 @@ class Trajectory:
 
 
 def street_drive(scene: Scene, frames: int | None = None, rate_hz: float = 10.0, speed: float = 10.0,
-                 seed: int = 0, *, height: float = 1.73, lane_offset: float = -1.75, start_s: float = 0.0) -> Trajectory:
-    """A car driving along a :func:`street_scene` centreline in the right lane at about ``speed`` m/s (a slow
-    +-10 % speed variation, a lane offset that drifts +-0.3 m, pitch and roll of a few tenths of a degree, 1 cm
+                 seed: int = 0, *, height: float = 1.73, lane_offset: float = -1.75, start_s: float = 0.0,
+                 speed_variation: float = 0.1, speed_period: float | None = None) -> Trajectory:
+    """A car driving along a :func:`street_scene` centreline in the right lane at about ``speed`` m/s (a speed
+    varying sinusoidally by +-``speed_variation`` of it over ``speed_period`` s, by default +-10 % over 15-40 s;
+    a lane offset that drifts +-0.3 m, pitch and roll of a few tenths of a degree, 1 cm
     of bounce, all fading out below 5 m/s), LiDAR ``height`` metres above the ground, poses for the LiDAR ("body" frame) at ``rate_hz``.
     ``frames=None`` drives the whole street. The speed is the real speed of the sensor along its path, so
     ``frames`` frames cover ``(frames - 1) / rate_hz * speed`` metres on average."""
@@ -113,18 +115,24 @@ def street_drive(scene: Scene, frames: int | None = None, rate_hz: float = 10.0,
     length = float(scene.meta.get("length_m", line.s1))
     if not rate_hz > 0:
         raise ValueError(f"rate_hz must be positive, got {rate_hz!r}")
+    if not 0.0 <= speed_variation < 1.0:
+        raise ValueError(f"speed_variation must be in [0, 1), got {speed_variation!r}")
+    if speed_period is not None and not speed_period > 0:
+        raise ValueError(f"speed_period must be positive (s), got {speed_period!r}")
     rng = np.random.default_rng(seed)
-    # Distance travelled: integral of speed * (1 + 0.1 sin(w t + phi)).
+    # Distance travelled: integral of speed * (1 + a sin(w t + phi)).
     w_v, phi_v = 2 * np.pi / rng.uniform(15, 40), rng.uniform(0, 2 * np.pi)
+    if speed_period is not None:
+        w_v = 2 * np.pi / speed_period
 
     def travelled(t):
-        return speed * (t - 0.1 / w_v * (np.cos(w_v * t + phi_v) - np.cos(phi_v)))
+        return speed * (t - speed_variation / w_v * (np.cos(w_v * t + phi_v) - np.cos(phi_v)))
 
     if frames is None:      # the first frame count whose drive covers the street from start_s
         goal = max(length - start_s, 0.0) + 0.5 if length > start_s else 0.0
         frames = 1
         if speed > 0 and goal > 0:
-            n = int(np.ceil(goal / (0.8 * speed) * rate_hz)) + 2
+            n = int(np.ceil(goal / (0.85 * max(1.0 - speed_variation, 0.05) * speed) * rate_hz)) + 2
             frames = int(np.argmax(travelled(np.arange(n) / rate_hz) >= goal)) + 1
     frames, rate_hz = _check_frames(frames, rate_hz)
     t = np.arange(frames) / rate_hz
