@@ -312,13 +312,13 @@ def simulated_drive(frames: int, sensor: str, distorted: str, swing=None):
     15-40 s), its ground-truth poses and the sensor's preset; prints the drive's heading line."""
     from line_odom import sim
 
-    share, period = swing if swing else (0.1, None)
+    swing_kw = {"speed_variation": swing[0], "speed_period": swing[1]} if swing else {}  # else the street's own
     run = sim.make("street", frames=frames, seed=0, noise_std=0.01, sensor=sensor, motion_distortion=bool(distorted),
-                   speed_variation=share, speed_period=period)
+                   **swing_kw)
     gt = np.array(run.trajectory.poses)
     length = float(np.sum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)))
     preset = SIM_PRESETS[sensor]
-    swinging = f", speed 10 m/s +-{100 * share:.0f} % every {period:g} s" if swing else ""
+    swinging = f", speed 10 m/s +-{100 * swing[0]:.0f} % every {swing[1]:g} s" if swing else ""
     print(f"\nsimulated street drive{distorted}{swinging}, {sensor} ({preset}): {frames} scans, {length:.0f} m (KITTI "
           f"devkit metric over 100..800 m segments when >= 100 m)")
     return run, gt, preset
