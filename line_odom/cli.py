@@ -1,4 +1,4 @@
-"""The `line_odom` command line: kitti2bag, tum2bag, replay, eval, demo.
+"""The `line_odom` command line: kitti2bag, tum2bag, replay, eval, demo, batch.
 
 Every failure is one line on stderr (``line_odom: error: ...``) and a non-zero return code, never a traceback.
 """
@@ -75,6 +75,23 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a sensor_msgs/Imu topic of the bag whose gyro rates turn the node's prediction "
                         "(imu.enabled)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no table")
+
+    p = sub.add_parser("batch", help="replay every recording of a folder or manifest (local processes or a Dask "
+                                     "cluster) and summarize the metrics")
+    p.add_argument("inputs", metavar="INPUTS", help="a folder (every recording replay reads, searched recursively) or a "
+                                                    "manifest (.yaml/.csv: path, label, params, set)")
+    p.add_argument("--out", required=True, metavar="DIR", help="outputs: DIR/<label>/ per recording, DIR/summary.*")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                       help="local worker processes (default: the cores)")
+    where.add_argument("--cluster", default=None, metavar="ADDRESS",
+                       help="run on this existing Dask scheduler (e.g. tcp://host:8786)")
+    p.add_argument("--params", metavar="YAML", default=None, help="parameter file for recordings without their own")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
+                   help="override one parameter for every recording (a manifest entry's own set wins); repeatable")
+    p.add_argument("--frames", type=_positive_int, default=None, help="replay only the first N frames of each")
+    p.add_argument("--force", action="store_true", help="replay recordings whose outputs are complete too")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
 
     p = sub.add_parser("eval", help="metrics of an estimated trajectory against ground truth (TUM or KITTI files)")
     p.add_argument("est", metavar="EST", help="estimated trajectory (TUM: t x y z qx qy qz qw, or KITTI: 12 numbers)")
@@ -170,6 +187,22 @@ def cmd_replay(args) -> int:
     return 0
 
 
+def cmd_batch(args) -> int:
+    from line_odom import batch
+
+    result = batch.run_batch(args.inputs, args.out, workers=args.workers, cluster=args.cluster, params=args.params,
+                             overrides=parse_overrides(args.overrides), frames=args.frames, force=args.force,
+                             progress=not args.quiet)
+    counts = {s: sum(r["status"] == s for r in result.rows) for s in ("ok", "skipped", "failed")}
+    if not args.quiet:
+        print(f"{len(result.rows)} recordings: {counts['ok']} replayed, {counts['skipped']} skipped (complete), "
+              f"{counts['failed']} failed; wrote {', '.join(str(p) for p in result.files)}")
+    if result.failed:
+        raise RuntimeError(f"{len(result.failed)} of {len(result.rows)} recordings failed "
+                           f"({', '.join(r['label'] for r in result.failed)}; errors in {result.files[1]})")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from line_odom import demo
 
@@ -178,7 +211,7 @@ def cmd_demo(args) -> int:
 
 
 COMMANDS = {"kitti2bag": cmd_kitti2bag, "tum2bag": cmd_tum2bag, "replay": cmd_replay, "eval": cmd_eval,
-            "demo": cmd_demo}
+            "demo": cmd_demo, "batch": cmd_batch}
 
 
 def main(argv: list[str] | None = None) -> int:
