@@ -1,7 +1,7 @@
 """Rigid-transform helpers for publishing odometry (REP-103/105): pose parameters, SE(3) adjoint and log,
 and the covariance bookkeeping between the sensor's frame-to-frame estimate and the base's odometry.
 
-Conventions (DESIGN.md §3): ``T_ab`` maps frame-b coordinates into frame a; 6-vectors and 6x6 covariances
+Conventions (docs/DESIGN.md §3): ``T_ab`` maps frame-b coordinates into frame a; 6-vectors and 6x6 covariances
 are ordered (x y z rx ry rz) = (rho, phi); a "left" perturbation is ``T = exp(xi) T_hat``.
 """
 from __future__ import annotations

@@ -33,7 +33,7 @@ def test_launch_file_compiles_and_imports_without_launch():
 
 
 def test_launch_description_builds_where_launch_ros_exists():
-    pytest.importorskip("launch_ros", reason="launch_ros is not installable as a wheel here (DESIGN.md §4)")
+    pytest.importorskip("launch_ros", reason="launch_ros is not installable as a wheel here (docs/DESIGN.md §4)")
     description = _load_launch_module().generate_launch_description()
     assert len(description.entities) > 2
 

@@ -2,7 +2,7 @@
 contract, failure handling, bad input, determinism.
 
 Bounds are about 2x the mean RPE measured with the kitti_hdl64 preset (docs/RESULTS.md, "Accuracy"); KISS-ICP's
-figures on the same frames (DESIGN.md §6) are quoted for scale."""
+figures on the same frames (docs/RESULTS.md) are quoted for scale."""
 import threading
 import time
 

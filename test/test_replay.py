@@ -21,8 +21,8 @@ TUM_DIR = datasets.SHARED_DATA / "tum_rgbd_fr1_xyz"
 # what it measured), so going through a bag and the node's message path must cost no accuracy. Measured through
 # replay: KITTI 00 at 1/36 0.12 m / 0.21 deg; TUM 60 frames at 1/100 6.1 mm / 0.54 deg (16UC1 millimetres; 6.4 mm
 # / 0.59 deg from the PNGs directly). For scale: KITTI 00 moves
-# 0.86 m per frame (identity would score ~0.86 m); KISS-ICP gets 0.196 m / 0.157 deg at 1/36, 21.9 mm / 1.04 deg
-# on TUM at 1/100 (DESIGN.md section 6).
+# 0.86 m per frame (identity would score ~0.86 m); KISS-ICP's figures on the same
+# frames are in docs/RESULTS.md, "Accuracy".
 KITTI_RPE_T, KITTI_RPE_R = 0.25, 0.40
 TUM_RPE_T, TUM_RPE_R = 0.008, 1.0
 
