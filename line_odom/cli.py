@@ -31,6 +31,12 @@ def _add_bag_output_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _replay_formats() -> tuple[str, ...]:
+    from line_odom.readers import FORMATS
+
+    return FORMATS
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="line_odom",
@@ -53,8 +59,19 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "(default: from the directory name, else fr1)")
     _add_bag_output_args(p)
 
-    p = sub.add_parser("replay", help="run a bag through the odometry node and evaluate it")
-    p.add_argument("bag", metavar="BAG", help="input rosbag2 (sqlite3 or mcap)")
+    p = sub.add_parser("replay", help="run a recording (bag, pcap, osf, dataset folder, scans) through the odometry "
+                                      "node and evaluate it")
+    p.add_argument("bag", metavar="PATH", help="a rosbag2 (sqlite3 or mcap), ROS 1 .bag, Velodyne or Ouster .pcap, "
+                                               "Ouster .osf, KITTI odometry / raw folder, TUM RGB-D folder or folder of "
+                                               ".bin / .pcd / .ply scans (docs/TOOLS.md)")
+    p.add_argument("--format", default=None, choices=_replay_formats(),
+                   help="the recording's format (default: guessed from PATH)")
+    p.add_argument("--meta", metavar="JSON", default=None,
+                   help="an Ouster pcap's sensor metadata (default: the json beside it whose name starts the pcap's)")
+    p.add_argument("--ground-truth", metavar="FILE", default=None, dest="ground_truth",
+                   help="a TUM or KITTI trajectory file (KITTI: one pose a frame) instead of the recording's own")
+    p.add_argument("--plot-features", metavar="N", type=int, nargs="?", const=0, default=None, dest="plot_features",
+                   help="also draw frame N's points and fitted H/V lines, top view, to DIR/features.png (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory for trajectories, metrics and plot")
     p.add_argument("--params", metavar="YAML", default=None, help="ROS 2 parameter file for the node")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
@@ -176,12 +193,16 @@ def parse_overrides(items: list[str]) -> dict:
 def cmd_replay(args) -> int:
     from line_odom import evaluation, replay
 
-    result = replay.replay_bag(args.bag, args.out, params=args.params, overrides=parse_overrides(args.overrides),
-                               realtime=args.realtime, rate=args.rate,
-                               out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
-                               frames=args.frames, progress=not args.quiet, guess_topic=args.guess_topic,
-                               imu_topic=args.imu_topic)
+    result = replay.replay(args.bag, args.out, format=args.format, meta=args.meta, ground_truth=args.ground_truth,
+                           plot_features=args.plot_features, params=args.params,
+                           overrides=parse_overrides(args.overrides), realtime=args.realtime, rate=args.rate,
+                           out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
+                           frames=args.frames, progress=not args.quiet, guess_topic=args.guess_topic,
+                           imu_topic=args.imu_topic)
     if not args.quiet:
+        info = result.input
+        print(f"input: {info.get('format')}, preset {info.get('preset')} ({info.get('sensor')}); ground truth: "
+              f"{info.get('ground_truth') or 'none'}" + "".join(f"; {note}" for note in info.get("notes", [])))
         print(evaluation.format_table(result.metrics, f"replay {args.bag}"))
         print(f"wrote {', '.join(str(p) for p in result.files)}")
     return 0
