@@ -40,14 +40,20 @@ TMP_DIR = ".batch_tmp"
 SUMMARY_CSV, SUMMARY_MD, SUMMARY_PLOT = "summary.csv", "summary.md", "summary.png"
 REPLAY_OUTPUTS = ("trajectory_tum.txt", "trajectory_kitti.txt", "metrics.json")
 MANIFEST_FIELDS = ("path", "label", "params", "set")
+# recording files whose format cannot be guessed because they are unreadable: still tasks, so they fail visibly
+RECORDING_SUFFIXES = {".pcap": "velodyne", ".pcapng": "velodyne", ".osf": "ouster", ".bag": "ros1"}
 KINDS_HELP = ("a rosbag2 directory (metadata.yaml), a KITTI odometry sequence folder (velodyne/*.bin, times.txt) or "
               "a TUM RGB-D folder (depth.txt, depth/)")
 # the metric keys in the order evaluation prints them; others follow alphabetically
 METRIC_ORDER = ("frames", "frames_dropped", "frames_with_ground_truth", "path_length_m", "rpe_trans_mean_m",
                 "rpe_trans_max_m", "rpe_rot_mean_deg", "rpe_rot_max_deg", "ate_rmse_m", "kitti_t_err_pct",
                 "kitti_r_err_deg_per_m", "latency_mean_ms", "latency_p95_ms")
+# "worst" of a metric is its largest value or its smallest; keys in neither set (path length, input counters) are
+# properties of the recording and have none
 LARGER_IS_BETTER = {"frames", "frames_with_ground_truth"}
-NO_WORST = {"path_length_m"}  # a property of the recording, not of the odometry
+SMALLER_IS_BETTER = {"frames_dropped", "rpe_trans_mean_m", "rpe_trans_max_m", "rpe_rot_mean_deg", "rpe_rot_max_deg",
+                     "ate_rmse_m", "kitti_t_err_pct", "kitti_r_err_deg_per_m", "latency_mean_ms", "latency_p95_ms",
+                     "seconds"}
 PLOT_METRICS = (("rpe_trans_mean_m", "RPE translation mean [m]"), ("rpe_rot_mean_deg", "RPE rotation mean [deg]"),
                 ("kitti_t_err_pct", "KITTI drift t_err [%]"))
 DEPENDENCY_HINT = ("line_odom batch needs Dask's distributed engine: pip install dask distributed "
@@ -76,15 +82,13 @@ class Recording:
                 "overrides": {k: self.overrides[k] for k in sorted(self.overrides)}, "frames": frames}
 
 
-def _readers_detect() -> Callable[[Path], str | None] | None:
-    """The format detection of line_odom.readers when that package offers one (replay then reads those formats
-    itself), else None."""
+def _readers():
+    """line_odom.readers when it is there to guess formats (replay then reads them all), else None."""
     try:
-        from line_odom import readers  # noqa: F401
+        from line_odom import readers
     except ImportError:
         return None
-    detect = getattr(readers, "detect", None) or getattr(readers, "detect_format", None)
-    return detect if callable(detect) else None
+    return readers if callable(getattr(readers, "guess_format", None)) else None
 
 
 def _detect_builtin(path: Path) -> str | None:
@@ -100,17 +104,16 @@ def _detect_builtin(path: Path) -> str | None:
 
 
 def detect(path: str | Path) -> str | None:
-    """The kind of recording at `path` (a name such as "rosbag2", "kitti", "tum"), or None if it is none."""
+    """The format of the recording at `path` (line_odom.readers' name for it: "rosbag2", "kitti", "tum", ...), or
+    None if it is none replay reads."""
     path = Path(path)
-    readers_detect = _readers_detect()
-    if readers_detect is not None:
-        try:
-            kind = readers_detect(path)
-        except (ValueError, OSError):
-            kind = None
-        if kind:
-            return str(getattr(kind, "name", kind))
-    return _detect_builtin(path)
+    readers = _readers()
+    if readers is None:
+        return _detect_builtin(path)
+    try:
+        return readers.guess_format(path)
+    except Exception:  # not a recording, or a recording file that cannot be read: that one is a failed task
+        return None if path.is_dir() else RECORDING_SUFFIXES.get(path.suffix.lower())
 
 
 def discover(root: str | Path, exclude: Iterable[str | Path] = ()) -> list[Recording]:
@@ -332,8 +335,12 @@ def _replay(rec: Recording, out: Path, work: Path, frames: int | None) -> dict:
 
     if rec.kind is None:
         raise ValueError(f"{rec.path}: not a recording line_odom replay can read (expected {KINDS_HELP})")
+    if hasattr(replay, "replay") and _readers() is not None:  # replay reads every format itself
+        result = replay.replay(rec.path, out, format=rec.kind, params=rec.params, overrides=rec.overrides,
+                               frames=frames, progress=False, title=rec.label)
+        return result.metrics
     source = rec.path
-    if rec.kind in ("kitti", "tum") and _readers_detect() is None:
+    if rec.kind in ("kitti", "tum"):
         # replay reads bags: the folder becomes one first, in the task's scratch space, cut to `frames`
         source = work / "input_bag"
         convert = bags.kitti_to_bag if rec.kind == "kitti" else bags.tum_to_bag
@@ -358,7 +365,7 @@ def run_recording(rec: Recording, out_root: str | Path, frames: int | None = Non
     try:
         out = work / "out"
         try:
-            row["metrics"] = _replay(rec, out, work, frames)
+            row["metrics"] = numeric_metrics(_replay(rec, out, work, frames))
         except Exception as exc:  # a failing recording is a row of the summary, not the end of the batch
             row["error"] = one_line_error(exc)
             row["seconds"] = time.monotonic() - start
@@ -387,6 +394,17 @@ def _distributed():
     return distributed
 
 
+def dask_setup(worker) -> None:
+    """Dask preload hook, run in each local worker process: Ctrl-C at a terminal reaches the whole process group;
+    the batch process alone handles it (cancels, closes the cluster, removes the scratch) instead of every worker
+    printing its own traceback."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def local_cluster(workers: int):
     """A LocalCluster of `workers` single-threaded worker processes. The scheduler gives up on a task at the
     first death of its worker, so that the one retry is ours (execute) and counted."""
@@ -396,8 +414,10 @@ def local_cluster(workers: int):
 
     distributed = _distributed()
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        return distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=logging.ERROR)
+        # no dashboard; the scheduler's HTTP routes on a free loopback port instead of the usual 8787
+        return distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                        dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                                        silence_logs=logging.ERROR, preload=[__name__])
 
 
 def connect(address: str):
@@ -417,19 +437,30 @@ def _worker_died(exc: BaseException) -> bool:
 
 def execute(client, recordings: list[Recording], out_root: str | Path, *, frames: int | None = None,
             task: Callable = run_recording, on_row: Callable[[dict], None] | None = None) -> list[dict]:
-    """Runs `task(rec, out_root, frames)` for every recording on the client's workers, one task per worker
-    process at a time; a task whose worker died is submitted once more. Rows in the order of `recordings`."""
+    """Runs `task(rec, out_root, frames)` for every recording on the client's workers and returns the rows in the
+    order of `recordings`. No more tasks are in flight than the workers have threads, so a worker that dies takes
+    only the task it was running with it; that task is submitted once more."""
     distributed = _distributed()
     futures = {}
+    queue = [(rec, 0) for rec in recordings]
 
-    def submit(rec: Recording, attempt: int):
-        key = f"line_odom-batch-{rec.label}-{uuid.uuid4().hex[:8]}"
-        future = client.submit(task, rec, str(out_root), frames, key=key, pure=False, retries=0)
-        futures[future] = (rec, attempt)
-        return future
+    def capacity() -> int:
+        try:
+            return max(sum(client.nthreads().values()), 1)
+        except Exception:  # scheduler busy restarting a worker: one at a time until it answers
+            return 1
+
+    def submit_more(pending) -> None:
+        while queue and len(futures) < capacity():
+            rec, attempt = queue.pop(0)
+            key = f"line_odom-batch-{rec.label}-{uuid.uuid4().hex[:8]}"
+            future = client.submit(task, rec, str(out_root), frames, key=key, pure=False, retries=0)
+            futures[future] = (rec, attempt)
+            pending.add(future)
 
     rows: dict[str, dict] = {}
-    pending = distributed.as_completed([submit(rec, 0) for rec in recordings])
+    pending = distributed.as_completed()
+    submit_more(pending)
     try:
         for future in pending:
             rec, attempt = futures.pop(future)
@@ -437,7 +468,8 @@ def execute(client, recordings: list[Recording], out_root: str | Path, *, frames
                 row = future.result()
             except Exception as exc:
                 if _worker_died(exc) and attempt == 0:
-                    pending.add(submit(rec, 1))
+                    queue.insert(0, (rec, 1))
+                    submit_more(pending)
                     continue
                 row = {"label": rec.label, "input": str(rec.path), "kind": rec.kind, "status": "failed",
                        "seconds": float("nan"), "host": "", "commit": "", "metrics": {},
@@ -447,6 +479,7 @@ def execute(client, recordings: list[Recording], out_root: str | Path, *, frames
             rows[rec.label] = row
             if on_row is not None:
                 on_row(row)
+            submit_more(pending)
     except BaseException:
         for future in list(futures):
             future.cancel()
@@ -493,6 +526,11 @@ class BatchProgress(ProgressBar):
 # --------------------------------------------------------------------------------------------- summary
 
 
+def numeric_metrics(metrics: Mapping[str, Any]) -> dict[str, float]:
+    """The metrics that are numbers (metrics.json also describes the input: format, topic, preset)."""
+    return {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+
+
 def metric_keys(rows: list[dict]) -> list[str]:
     keys = {k for row in rows for k in row.get("metrics", {})}
     return [k for k in METRIC_ORDER if k in keys] + sorted(keys - set(METRIC_ORDER))
@@ -507,7 +545,7 @@ def aggregates(rows: list[dict]) -> dict[str, dict[str, float]]:
                   if (key == "seconds" or key in r["metrics"])]
         if not values:
             continue
-        worst = None if key in NO_WORST else (min(values) if key in LARGER_IS_BETTER else max(values))
+        worst = min(values) if key in LARGER_IS_BETTER else max(values) if key in SMALLER_IS_BETTER else None
         out[key] = {"mean": statistics.fmean(values), "median": statistics.median(values), "worst": worst}
     return out
 
@@ -683,9 +721,15 @@ def run_batch(inputs: str | Path, out_dir: str | Path, *, workers: int | None = 
         bar.count(row)
 
     def summarize() -> list[dict]:
-        ordered = [rows.get(rec.label) or {"label": rec.label, "input": str(rec.path), "kind": rec.kind,
-                                           "status": "interrupted", "error": "not run (interrupted)", "metrics": {}}
-                   for rec in recordings]
+        ordered = []
+        for rec in recordings:
+            row = rows.get(rec.label)
+            if row is None:  # interrupted: a task may have finished after its result could no longer arrive
+                record = read_complete(out_root / rec.label, rec.spec(frames))
+                row = ({**_skipped_row(rec, record), "status": "ok"} if record is not None else
+                       {"label": rec.label, "input": str(rec.path), "kind": rec.kind, "status": "interrupted",
+                        "error": "not run (interrupted)", "metrics": {}})
+            ordered.append(row)
         run_info["wall_s"] = time.monotonic() - t0
         return ordered
 
