@@ -165,6 +165,36 @@ class OdometryProcessor:
         where = "initial_pose" if initial_pose is None else "the given pose"
         self._info(f"odometry reset ({reason}); the next frame starts at {where}")
 
+    def set_initial_pose(self, msg) -> bool:
+        """geometry_msgs/PoseWithCovarianceStamped (rviz's 2D Pose Estimate): the base's pose in odom_frame; the
+        trajectory restarts there at the next frame (as after ~/reset, which goes back to the parameter
+        initial_pose). A pose in another frame or not a pose (non-finite, not a unit quaternion) is refused, logged
+        and counted (initial_poses_rejected)."""
+        odom = self.settings.odom_frame
+        frame = str(msg.header.frame_id).lstrip("/")
+        what = "refused initialpose"
+        if frame != odom:
+            self._reject("initial_poses_rejected", f"PoseWithCovarianceStamped.header.frame_id: expected odom_frame "
+                                                   f"{odom!r} (the base's pose in it), got {frame!r}; no transform "
+                                                   f"between them is looked up (set rviz's fixed frame to {odom!r})",
+                         what)
+            return False
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        position = np.array([p.x, p.y, p.z], dtype=float)
+        quat = np.array([q.x, q.y, q.z, q.w], dtype=float)
+        norm = float(np.linalg.norm(quat))
+        if not np.isfinite(position).all():
+            self._reject("initial_poses_rejected", f"PoseWithCovarianceStamped.pose.pose.position: expected finite "
+                                                   f"values, got {position.tolist()}", what)
+            return False
+        if not math.isfinite(norm) or abs(norm - 1.0) > 1e-3:
+            self._reject("initial_poses_rejected", f"PoseWithCovarianceStamped.pose.pose.orientation: expected a unit "
+                                                   f"quaternion, got {quat.tolist()} (norm {norm:g})", what)
+            return False
+        T = frames.pose_from_params([*position, *(quat / norm)], "initialpose")
+        self.reset(f"initialpose in {odom}", T)
+        return True
+
     # ------------------------------------------------------------------ counters and logs
     def _count(self, kind: str, n: int = 1) -> None:
         with self._count_lock:
