@@ -64,6 +64,9 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_package_build.py": ("ros", "slow"),
     "test_bench.py": ("data", "slow"),
     "test_batch.py": ("data", "slow"),
+    "test_node_hostile.py": ("ros", "slow"),
+    "test_node_lifecycle.py": ("ros", "slow"),
+    "test_readers.py": ("data", "slow"),
 }
 
 # 1..100: Fast DDS derives UDP ports from the domain id (7400 + 250 * id + ...); ids above ~100 reach
