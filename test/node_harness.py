@@ -41,13 +41,13 @@ def _ros_value(value) -> str:
 
 
 class NodeProcess:
-    """``python -m line_odom.node --ros-args -r __ns:=/<ns> -p k:=v ...``; stop() sends SIGINT and checks the
-    node exits 0 without a traceback."""
+    """``python -m line_odom.node --ros-args -r __ns:=/<ns> -p k:=v ...`` (``module``: line_odom.lifecycle_node for
+    the managed node); stop() sends SIGINT and checks the node exits 0 without a traceback."""
 
     def __init__(self, env: dict, params: dict | None = None, namespace: str | None = None,
-                 extra_args: list[str] | None = None):
+                 extra_args: list[str] | None = None, module: str = "line_odom.node"):
         self.namespace = namespace or "/t" + uuid.uuid4().hex[:8]
-        args = [sys.executable, "-m", "line_odom.node", "--ros-args", "-r", f"__ns:={self.namespace}"]
+        args = [sys.executable, "-m", module, "--ros-args", "-r", f"__ns:={self.namespace}"]
         for key, value in (params or {}).items():
             args += ["-p", f"{key}:={_ros_value(value)}"]
         args += extra_args or []
