@@ -127,14 +127,16 @@ def discover(root: str | Path, exclude: Iterable[str | Path] = ()) -> list[Recor
     if kind is not None:
         return [Recording(root.resolve(), root.resolve().name, kind)]
     found = []
+    visited = {root.resolve()}  # archives link folders; a link back up must not loop
     for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
         here = Path(dirpath)
         dirnames.sort()
         keep = []
         for name in dirnames:
             sub = here / name
-            if name.startswith(".") or sub.resolve() in excluded:
+            if name.startswith(".") or sub.resolve() in excluded or sub.resolve() in visited:
                 continue
+            visited.add(sub.resolve())
             kind = detect(sub)
             if kind is not None:
                 found.append(Recording(sub.resolve(), "__".join(sub.relative_to(root).parts), kind))

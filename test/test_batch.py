@@ -3,8 +3,10 @@ truncated bag): local workers and a local Dask cluster give the same trajectorie
 and the failed row's error; a second run skips what is complete; manifests; a worker that dies is retried once;
 Ctrl-C leaves no half-written outputs."""
 import csv
+import io
 import json
 import os
+import re
 import signal
 import socket
 import statistics
@@ -22,8 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import batch as bench_batch  # noqa: E402
-
-distributed = pytest.importorskip("distributed", reason="line_odom batch's engine (requirements/dev.txt)")
+import distributed  # noqa: E402  (line_odom batch's engine: requirements/dev.txt, installed by make setup)
 
 KITTI_FRAMES, TUM_FRAMES = 4, 5
 OK_LABELS = ["kitti__00", "kitti__04", "kitti__04_bag", "kitti__07_mcap", "tum__rgbd_dataset_freiburg1_xyz"]
@@ -240,3 +241,43 @@ def test_ctrl_c_leaves_complete_outputs_or_none(archive, tmp_path):
             assert rows[label]["status"] == "interrupted" and rows[label]["error"] == "not run (interrupted)"
     assert sorted(p.name for p in out.iterdir()) == sorted(
         [batch.SUMMARY_CSV, batch.SUMMARY_MD, batch.SUMMARY_PLOT] + [k for k in rows if (out / k).is_dir()])
+
+
+def test_discovery_without_the_readers_and_its_folder_conversion(archive, tmp_path, monkeypatch):
+    """Where line_odom.readers is absent, batch finds bags, KITTI and TUM folders itself and converts the folders to
+    bags for replay_bag: the same recordings, the same kinds."""
+    root, paths = archive
+    (root / "kitti" / "loop").symlink_to(root / "kitti")  # a link back up is not followed twice
+    try:
+        found = {r.label: r.kind for r in batch.discover(root)}
+        monkeypatch.setattr(batch, "_readers", lambda: None)
+        assert {r.label: r.kind for r in batch.discover(root)} == found
+    finally:
+        (root / "kitti" / "loop").unlink()
+    assert sorted(found) == sorted(OK_LABELS + [BROKEN])
+    row = batch.run_recording(batch.Recording(paths["kitti__04"], "k", "kitti", overrides={"downsample": 6}), tmp_path)
+    assert row["status"] == "ok", row["error"]
+    assert row["metrics"]["frames"] == KITTI_FRAMES and (tmp_path / "k" / "trajectory_tum.txt").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [batch.TMP_DIR, "k"]
+    assert list((tmp_path / batch.TMP_DIR).iterdir()) == []  # the converted bag went with the task's scratch
+
+
+def test_progress_counts_done_and_failed_with_an_eta():
+    stream = io.StringIO()
+    bar = batch.BatchProgress(3, enabled=True, stream=stream)
+    bar.min_interval_s = 0.0
+    bar.to_run = 2
+    bar.count({"status": "skipped"})
+    assert re.search(r"\] 1/3 done, 0 failed +[0-9.]+s ETA    -$", stream.getvalue())
+    bar.count({"status": "failed"})
+    assert "2/3 done, 1 failed" in stream.getvalue().rsplit("\r", 1)[-1]
+    assert "ETA    -" not in stream.getvalue().rsplit("\r", 1)[-1]  # one of two run: the other's time estimated
+    bar.count({"status": "ok"})
+    bar.close()
+    assert stream.getvalue().rsplit("\r", 1)[-1].startswith(f"batch [{'#' * bar.width}] 3/3 done, 1 failed")
+
+
+def test_the_node_does_not_import_the_engine():
+    code = "import sys, line_odom.node, line_odom.cli; sys.exit(any(m.split('.')[0] in ('dask', 'distributed') " \
+           "for m in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], cwd=ROOT, timeout=120).returncode == 0
