@@ -16,12 +16,12 @@ TEXT_SUFFIXES = {".py", ".pyi", ".cpp", ".hpp", ".h", ".md", ".yaml", ".yml", ".
                  ".rviz", ""}
 # Names whose first component is a top-level entry of the repository are checked as paths relative to its root.
 TOP_LEVEL = {p.name for p in ROOT.iterdir() if p.name not in SKIP_DIRS and (not p.name.startswith(".") or p.name == ".ci")}
-# A lone source file name in a code span (`odometry.cpp`, `range_image.*`) must exist somewhere in the repository;
-# `ransac.*` and the like are settings groups, and a few names are other projects' files.
-SOURCE_NAME = re.compile(r"^\w[\w.-]*\.(py|pyi|cpp|hpp|h|sh|yaml|rviz|\*)$")
+# A lone source file name in a code span (`odometry.cpp`) must exist somewhere in the repository; a few names are
+# other projects' files.
+SOURCE_NAME = re.compile(r"^\w[\w.-]*\.(py|pyi|cpp|hpp|h|sh|rviz)$")
 NOT_OURS = {"evaluate_odometry.cpp"}  # the KITTI odometry devkit's
 NOTEBOOK = re.compile(r"\b(session|issue)s?[ -]?#?[0-9]+", re.IGNORECASE)
-DATE = re.compile(r"\b20[0-9]{2}-[01][0-9]-[0-3][0-9]\b(?! [0-9]{2}:[0-9]{2}:[0-9]{2})")  # not a data format's stamp
+DATE = re.compile(r"\b20[0-9]{2}-[01][0-9]-[0-3][0-9]\b(?! [0-9]{2}:[0-9]{2}:)")  # not a data format's stamp
 # Files another owner is still cleaning of "session N" / "issue N" (the C++ engine and its bindings). The test fails
 # when one of them is clean, so the list only shrinks.
 PENDING_NOTEBOOK = {
@@ -45,17 +45,10 @@ def _repository_files() -> list[str]:
     return [f for f in files if Path(f).suffix in TEXT_SUFFIXES]
 
 
-def _groups() -> set[str]:
-    """Dotted-name groups of the engine's settings and stats (`ransac.*`, `ms.*`): not file names."""
-    from line_odom_core.config import config_schema
-
-    return {entry.name.split(".")[0] for entry in config_schema()} | {"ms"}
-
-
 def _named_paths(text: str) -> tuple[set[str], set[str]]:
-    """(paths from the repository root, bare file names) named in a markdown text: every word of a code span or
-    code block and every link target."""
-    spans = re.findall(r"```.*?```", text, flags=re.DOTALL)
+    """(paths from the repository root, bare file names) named in a markdown text: every word of a code span, of a
+    shell code block and every link target (other blocks hold examples: manifests, parameter files, diagrams)."""
+    spans = re.findall(r"```(?:bash|sh|console)\n.*?```", text, flags=re.DOTALL)
     inline = re.findall(r"`([^`\n]+)`", re.sub(r"```.*?```", "", text, flags=re.DOTALL))
     links = re.findall(r"\]\(([^)\s]+)\)", text)
     rooted, bare = set(), set()
@@ -66,7 +59,7 @@ def _named_paths(text: str) -> tuple[set[str], set[str]]:
             rooted.add(word.rstrip("/"))
     for span in inline:  # a lone file name in a code span: `odometry.cpp`, `range_image.*`
         word = span.strip()
-        if SOURCE_NAME.match(word) and word not in NOT_OURS and not (word.endswith(".*") and word[:-2] in _groups()):
+        if SOURCE_NAME.match(word) and word not in NOT_OURS:
             bare.add(word)
     return rooted, bare
 
