@@ -3,6 +3,7 @@
 a KITTI raw drive folder laid out here from real KITTI raw scans, the shared KITTI odometry and TUM folders."""
 from __future__ import annotations
 
+import datetime
 import json
 import math
 import shutil
@@ -209,10 +210,12 @@ def _kitti_raw_drive(root: Path, frames: int) -> tuple[Path, np.ndarray]:
     T_velo_imu[:3, 3] = np.array(lines[2].split()[1:], float)
     reference = datasets.read_kitti_poses(STOP_AND_GO / "reference_poses.txt")[:frames]
     stamps = []
+    start = datetime.datetime(2011, 9, 26, 13, 2, 25)
     for i in range(frames):
         (drive / "velodyne_points" / "data" / f"{i:010d}.bin").symlink_to(STOP_AND_GO / "velodyne" / f"{i:06d}.bin")
-        seconds = 25.5 + i * 0.1036
-        stamps.append(f"2011-09-26 13:02:{int(seconds):02d}.{round((seconds % 1) * 1e9):09d}")
+        nanos = 500_000_000 + i * 103_600_000  # 10.36 Hz, KITTI raw's rate
+        stamps.append((start + datetime.timedelta(seconds=nanos // 10**9)).strftime("%Y-%m-%d %H:%M:%S")
+                      + f".{nanos % 10**9:09d}")
     for i, record in enumerate(_oxts_records(reference, T_velo_imu)):
         (drive / "oxts" / "data" / f"{i:010d}.txt").write_text(" ".join(repr(float(v)) for v in record) + "\n")
     (drive / "velodyne_points" / "timestamps.txt").write_text("\n".join(stamps) + "\n")

@@ -29,7 +29,7 @@ def guess_format(path: str | Path) -> str:
 
     path = Path(path)
     if not path.exists():
-        raise ReaderError(f"{path}: no such file or folder")
+        raise ReaderError(f"{path}: no such bag, file or folder")
     if rosbag2_dir(path) is not None:
         return "rosbag2"
     if path.is_file():
@@ -64,7 +64,7 @@ def open_source(path: str | Path, format: str | None = None, *, frames: int | No
         raise ReaderError(f"--format: expected one of {', '.join(FORMATS)}, got {format!r}")
     path = Path(path)
     if not path.exists():
-        raise ReaderError(f"{path}: no such file or folder")
+        raise ReaderError(f"{path}: no such bag, file or folder")
     if format == "rosbag2":
         raise ReaderError(f"{path}: rosbag2 bags are replayed by line_odom.replay.replay_bag")
     if format == "ros1":
