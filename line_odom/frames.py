@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 # Eigen's: scipy's Rotation costs ~0.2 ms a call on the per-frame path. quaternion_xyzw gives [x, y, z, w], w >= 0.
 from line_odom_core._core import quaternion_xyzw, rotation_vector  # noqa: F401
+from line_odom_core.odometry import log_se3  # noqa: F401  (one definition of the twist: line_odom_core.odometry)
 
 
 def pose_from_params(values: Sequence[float], name: str) -> np.ndarray:
@@ -64,20 +65,6 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     Ad[:3, 3:] = skew(t) @ R
     Ad[3:, 3:] = R
     return Ad
-
-
-def log_se3(T: np.ndarray) -> np.ndarray:
-    """xi = (rho, phi) with exp(xi) = T (the constant body twist that moves by T in unit time)."""
-    phi = rotation_vector(T[:3, :3])
-    theta = float(np.linalg.norm(phi))
-    W = skew(phi)
-    if theta < 1e-6:
-        V_inv = np.eye(3) - 0.5 * W + W @ W / 12.0
-    else:
-        half = 0.5 * theta
-        coeff = (1.0 - half * math.cos(half) / math.sin(half)) / (theta * theta)
-        V_inv = np.eye(3) - 0.5 * W + coeff * (W @ W)
-    return np.concatenate([V_inv @ T[:3, 3], phi])
 
 
 def ad(xi: np.ndarray) -> np.ndarray:

@@ -15,14 +15,10 @@ import dataclasses
 import numpy as np
 
 from line_odom import frames
+from line_odom_core.odometry import body_twist
 
 FIRST_POSE_VARIANCE = 1e-9  # the first pose is exact by definition; a floor keeps the covariance definite
 UNKNOWN_TWIST_VARIANCE = 1e6  # first frame after a (re)start: no motion observed yet
-
-
-def body_twist(motion: np.ndarray, seconds: float) -> np.ndarray:
-    """The twist (vx vy vz wx wy wz) of a motion T_prev_curr over `seconds`, in the moving frame's axes."""
-    return frames.log_se3(motion) / seconds
 
 
 @dataclasses.dataclass
@@ -66,9 +62,8 @@ class BaseTrajectory:
             cov_d = frames.conjugate_covariance(cov_delta, X)  # left perturbation in the previous base frame
             self._cov_left = frames.symmetrize(self._cov_left + frames.conjugate_covariance(cov_d, self._T_prev))
             dt = (stamp_ns - self.last_stamp_ns) * 1e-9  # integer nanoseconds: exact for epoch stamps
-            xi = frames.log_se3(D)
-            twist = xi / dt  # body_twist(D, dt)
-            J = frames.left_jacobian_inverse(xi)  # perturbation of log(D) from the left perturbation of D
+            twist = body_twist(D, dt)
+            J = frames.left_jacobian_inverse(twist * dt)  # perturbation of log(D) from the left perturbation of D
             twist_cov = frames.symmetrize(J @ cov_d @ J.T) / (dt * dt)
         pose_cov = frames.left_to_ros_pose_covariance(self._cov_left, T)
         self._T_prev = T
