@@ -425,3 +425,10 @@ def test_demo_command_end_to_end(tmp_path, capsys):
     for name in ("street", "room"):
         assert (out / name / "trajectory.png").stat().st_size > 10_000
         assert (out / name / "input_bag" / "metadata.yaml").exists()
+
+
+def test_replay_and_replay_realtime_import_each_other_not():
+    """replay_realtime takes what it shares with replay from replay_common: importing it loads no replay."""
+    code = ("import sys, line_odom.replay_realtime; "
+            "assert 'line_odom.replay' not in sys.modules, 'replay_realtime imports replay'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
