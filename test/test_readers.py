@@ -84,8 +84,11 @@ def test_velodyne_pcap_every_rotation_with_ring_and_time(tmp_path):
 
 def test_ouster_os1_128_pcap_within_its_reference_poses(tmp_path):
     out = tmp_path / "out"
-    result = replay(OS1_PCAP, out, ground_truth=OS1_POSES, progress=False)  # the json beside it is found
+    result = replay(OS1_PCAP, out, ground_truth=OS1_POSES, out_bag=tmp_path / "odom_bag",
+                    progress=False)  # the json beside it is found
     m = _assert_outputs(out, 3)
+    with bags.BagReader(tmp_path / "odom_bag") as written:
+        assert written.counts["/odom"] == 3 and written.counts[bags.GROUND_TRUTH_TOPIC] == 3
     assert result.input["preset"] == "ouster_os128"
     assert m["frames_with_time"] == 3 and m["rows_from"] == "organized" and m["frames_deskewed"] >= 1
     # the shipped poses move ~0.25 m a scan: 5 cm a frame is a fifth of the motion
@@ -368,6 +371,12 @@ def test_errors_are_one_line(tmp_path, capsys):
     assert code == 1 and "metadata json" in err and "--meta" in err
     code, err = _cli_error(capsys, lonely, "--meta", tmp_path / "missing.json", "--out", tmp_path / "o")
     assert code == 1 and "missing.json" in err
+    # a pcap of another sensor model than its metadata's
+    code, err = _cli_error(capsys, OS1_PCAP, "--meta", REC / "OS-2-32-U0_v2.0.0_1024x10.json", "--out", tmp_path / "o")
+    assert code == 1 and "no scan of the OS-2-32-U0" in err
+    (tmp_path / "other.json").write_text('{"product": "none"}\n')
+    code, err = _cli_error(capsys, OS2_PCAP, "--meta", tmp_path / "other.json", "--out", tmp_path / "o")
+    assert code == 1 and "other.json" in err and "cannot read the metadata json" in err
     code, err = _cli_error(capsys, OSF, "--format", "lidar", "--out", tmp_path / "o")
     assert code == 2 and "--format" in err and "invalid choice" in err
     code, err = _cli_error(capsys, OSF, "--realtime", "--out", tmp_path / "o")

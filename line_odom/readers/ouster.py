@@ -52,7 +52,8 @@ class OusterSource(Source):
             self.info = self._src.sensor_info[0]
         except Exception as exc:  # the SDK raises RuntimeError / ValueError / its own types for bad files
             what = "metadata json" if self.meta is not None else "osf"
-            raise ReaderError(f"{self.meta or self.path}: ouster-sdk cannot read the {what} ({exc})") from None
+            reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+            raise ReaderError(f"{self.meta or self.path}: ouster-sdk cannot read the {what} ({reason})") from None
         from ouster.sdk import core
 
         self._lut = core.XYZLut(self.info)

@@ -29,7 +29,9 @@ class VelodynePcap(Source):
                               f"ouster and its metadata json)")
         self.limit = frames
         self.model = self._product()
-        first = next(self._clouds(), None)
+        clouds = self._clouds()
+        first = next(clouds, None)
+        clouds.close()
         if first is None:
             raise ReaderError(f"{self.path}: velodyne-decoder found no complete rotation in the pcap")
         xyz = np.stack([first[1]["x"], first[1]["y"], first[1]["z"]], axis=1)
