@@ -99,9 +99,11 @@ def test_local_workers_and_a_cluster_give_the_same_trajectories_and_the_summary(
     assert (out / batch.SUMMARY_PLOT).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not (out / batch.TMP_DIR).exists()
 
-    # the second run skips what is complete and tries the failed recording again
+    # the second run (on the test's cluster: no local one to start) skips what is complete and tries the failed
+    # recording again
     stamps = {k: (out / k / "trajectory_tum.txt").stat().st_mtime_ns for k in OK_LABELS}
-    assert main(["batch", str(root), "--out", str(out), "--workers", "2", "--set", "downsample=6", "--quiet"]) == 1
+    assert main(["batch", str(root), "--out", str(out), "--cluster", cluster.scheduler_address, "--set", "downsample=6",
+                 "--quiet"]) == 1
     again = _rows(out)
     assert [again[k]["status"] for k in OK_LABELS] == ["skipped"] * len(OK_LABELS)
     assert [again[k]["seconds"] for k in OK_LABELS] == [rows[k]["seconds"] for k in OK_LABELS]
