@@ -62,8 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("replay", help="run a recording (bag, pcap, osf, dataset folder, scans) through the odometry "
                                       "node and evaluate it")
     p.add_argument("bag", metavar="PATH", help="a rosbag2 (sqlite3 or mcap), ROS 1 .bag, Velodyne or Ouster .pcap, "
-                                               "Ouster .osf, KITTI odometry / raw folder, TUM RGB-D folder or folder of "
-                                               ".bin / .pcd / .ply scans (docs/TOOLS.md)")
+                                               "Ouster .osf, KITTI odometry / raw folder, TUM RGB-D folder or "
+                                               "folder of .bin / .pcd / .ply scans (docs/TOOLS.md)")
     p.add_argument("--format", default=None, choices=_replay_formats(),
                    help="the recording's format (default: guessed from PATH)")
     p.add_argument("--meta", metavar="JSON", default=None,

@@ -140,7 +140,8 @@ def plot_features(path: str | Path, frame, config, K: np.ndarray | None = None, 
     a, b = (0, 2) if frame.depth is not None else (0, 1)
     fig, ax = plt.subplots(figsize=(9, 8))
     ax.scatter(points[:, a], points[:, b], s=1.0, c="0.5", linewidths=0, label=f"points kept ({len(points)})")
-    for key, colour, width, name in (("v_lines", "C3", 0.6, "V-lines (columns)"), ("h_lines", "C0", 1.0, "H-lines (rows)")):
+    for key, colour, width, name in (("v_lines", "C3", 0.6, "V-lines (columns)"),
+                                     ("h_lines", "C0", 1.0, "H-lines (rows)")):
         segments = np.asarray(features[key]["segments"]).reshape(-1, 2, 3)
         ax.add_collection(LineCollection(segments[:, :, [a, b]], colors=colour, linewidths=width,
                                          label=f"{name}: {len(segments)}"))

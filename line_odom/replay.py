@@ -348,8 +348,9 @@ def _ground_truth_file(path: str | Path, run: ReplayRun) -> evaluation.Trajector
             raise ValueError(f"{path}: {len(gt)} poses for {run.frames_in} frames (a KITTI file is matched to the "
                              f"frames by index)")
         if len(run.estimate) != run.frames_in:
-            raise ValueError(f"{path}: a KITTI file is matched to the frames by index, but {run.frames_in - len(run.estimate)} "
-                             f"frame(s) have no pose; use a TUM file (with stamps)")
+            missing = run.frames_in - len(run.estimate)
+            raise ValueError(f"{path}: a KITTI file is matched to the frames by index, but {missing} frame(s) have no "
+                             f"pose; use a TUM file (with stamps)")
         gt = evaluation.Trajectory(gt.poses[: len(run.estimate)], run.estimate.stamps)
     return gt
 

@@ -43,7 +43,8 @@ class OusterSource(Source):
             self.meta = Path(meta) if meta is not None else metadata_beside(self.path)
             if self.meta is None:
                 raise ReaderError(f"{self.path}: an Ouster pcap needs its sensor metadata json: none beside it "
-                                  f"(expected <name>.json with the pcap's name starting with <name>); give it with --meta")
+                                  f"(expected <name>.json with the pcap's name starting with <name>); give it with "
+                                  f"--meta")
             if not self.meta.is_file():
                 raise ReaderError(f"{self.meta}: no such metadata json (for {self.path.name})")
             kwargs = {"meta": [str(self.meta)]}

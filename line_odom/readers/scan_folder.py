@@ -11,7 +11,7 @@ import numpy as np
 
 from line_odom import bags, convert, datasets
 from line_odom.readers import sensor_preset
-from line_odom.readers.base import Frame, ReaderError, Source, nominal_stamps_ns, sorted_files
+from line_odom.readers.base import Frame, ReaderError, Sensor, Source, nominal_stamps_ns, sorted_files
 
 SUFFIXES = (".bin", ".pcd", ".ply")
 KITTI_RINGS = 64  # a .bin whose point order splits into 64 lines is a KITTI HDL-64E scan (bags.kitti_rings)
@@ -83,8 +83,8 @@ def frame_from_fields(fields: dict[str, np.ndarray], stamp_ns: int, path: Path) 
         seconds = raw_time.astype(np.float64) * (1e-9 if raw_time.dtype.kind in "iu" else 1.0)
         measured = np.isfinite(xyz).all(axis=-1)
         clock = measured.any() and np.median(np.abs(seconds[measured])) > convert.ABSOLUTE_TIME_S
-        cloud = convert.CloudArrays(xyz, organized, None, None, seconds, "",
-                                    float(seconds[measured].min()) if clock else 0.0)
+        cloud = convert.CloudArrays(xyz, organized, time=seconds,
+                                    stamp=float(seconds[measured].min()) if clock else 0.0)
         try:
             time = convert.sweep_times(cloud)
         except convert.ConversionError as err:
@@ -127,8 +127,8 @@ class ScanFolder(Source):
         first = self._frame(0)
         what = f"{self.suffix} scans"
         if first.xyz.ndim == 3:
-            self.sensor = sensor_preset.Sensor("ouster_os128" if first.xyz.shape[0] >= 128 else "vlp16", {},
-                                               f"{what}: organized, {first.xyz.shape[0]} rows")
+            self.sensor = Sensor("ouster_os128" if first.xyz.shape[0] >= 128 else "vlp16", {},
+                                 f"{what}: organized, {first.xyz.shape[0]} rows")
         elif first.ring is not None:
             self.sensor = sensor_preset.for_rings(first.xyz, first.ring.astype(np.int64), what)
         else:

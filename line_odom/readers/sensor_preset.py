@@ -50,5 +50,6 @@ def for_cloud(xyz: np.ndarray, what: str) -> Sensor:
     for preset in sensor_check.LIDAR_PRESETS:
         if sensor_check.fits(Odometry(load_config(preset)).sensor_fit(xyz)):
             return Sensor(preset, {}, f"{what}: no ring field; the cloud fits the sensor model of {preset}")
+    presets = ", ".join(sensor_check.LIDAR_PRESETS)
     return Sensor("kitti_hdl64", {}, f"{what}: no ring field and the cloud fits none of the LiDAR presets' sensor "
-                                     f"models ({', '.join(sensor_check.LIDAR_PRESETS)}); set --params or --set sensor.*")
+                                     f"models ({presets}); set --params or --set sensor.*")

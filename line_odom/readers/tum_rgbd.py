@@ -6,8 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Iterator
 
-import numpy as np
-
 from line_odom import bags, datasets
 from line_odom.evaluation import Trajectory
 from line_odom.readers.base import Frame, ReaderError, Sensor, Source
