@@ -2,7 +2,8 @@
 line_odom.lifecycle_node.
 
 Subscribes ``points`` (PointCloud2) or ``depth/image`` + ``depth/camera_info``, and ``initialpose``; publishes ``odom``
-(nav_msgs/Odometry), ``path`` (nav_msgs/Path), ``/tf`` (tf2_msgs/TFMessage) and ``/diagnostics``; serves ``~/reset``
+(nav_msgs/Odometry), ``path`` (nav_msgs/Path), ``/tf`` (tf2_msgs/TFMessage), ``/diagnostics`` and, while subscribed,
+``~/scan`` (the registered scan, PointCloud2); serves ``~/reset``
 (std_srvs/Trigger). A frame goes: subscription callback -> LatestSlot (the newest message wins; a replaced one is
 counted as dropped) -> the worker thread -> OdometryProcessor (convert, fuse, register, base pose, messages; the
 engine releases the GIL) -> publish.
@@ -262,7 +263,9 @@ class OdometryNodeBase:
 
             self.pub_tf = create_pub(TFMessage, "/tf", 100)
         self.pub_diag = create_pub(DiagnosticArray, "/diagnostics", 10)
-        self._publishers_made = [p for p in (self.pub_odom, self.pub_path, self.pub_tf, self.pub_diag) if p]
+        self.pub_scan = create_pub(PointCloud2, "~/scan", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+        self._publishers_made = [p for p in (self.pub_odom, self.pub_path, self.pub_tf, self.pub_diag, self.pub_scan)
+                                 if p]
 
         self._slot = LatestSlot()
         self._camera_info_event = threading.Event()
@@ -371,6 +374,7 @@ class OdometryNodeBase:
                 continue
             msg, received = item
             try:
+                processor.scan_wanted = self.pub_scan.get_subscription_count() > 0
                 if depth:
                     if not processor.has_camera_info:
                         # hold a valid image until its CameraInfo arrives (unless a newer image replaces it)
@@ -393,6 +397,8 @@ class OdometryNodeBase:
                     self.pub_tf.publish(out.tf)
                 if self.pub_path.get_subscription_count() > 0 and self._path_due(out.stamp):
                     self.pub_path.publish(out.path)  # a long path costs milliseconds: only when wanted
+                if out.scan is not None:
+                    self.pub_scan.publish(out.scan)
             except Exception as err:  # a bug: never let one frame kill the node, and show where it is
                 if slot.closed:
                     break

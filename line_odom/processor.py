@@ -17,7 +17,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from line_odom import convert, frames, messages, sensor_check
+from line_odom import convert, frames, messages, scan_view, sensor_check
 from line_odom.diagnostics import RateLimitedLog, diagnostic_array, frame_values
 from line_odom.fusion import Fusion
 from line_odom.node_parameters import (INPUTS, NODE_PARAMETER_NAMES, NODE_PARAMETERS, NodeSettings,  # noqa: F401
@@ -43,6 +43,7 @@ class FrameOutput:
     path: Any
     tf: Any | None
     reset_reason: str | None = None
+    scan: Any | None = None  # the registered scan as PointCloud2, only when scan_wanted
 
 
 def _logger_call(logger, level: str) -> Callable[[str], None]:
@@ -100,6 +101,8 @@ class OdometryProcessor:
         self.sensor_frame = ""
         self.diagnostic_name = "line_odom: odometry"  # the node sets "<fully qualified node name>: odometry"
         self._path_poses: collections.deque = collections.deque(maxlen=self.settings.path_max_poses)
+        # set while something subscribes to the node's ~/scan: building it costs a second pass over the points
+        self.scan_wanted = False
 
     @classmethod
     def from_parameters(cls, preset_or_path: str = "kitti_hdl64", overrides: Mapping[str, Any] | None = None,
@@ -300,8 +303,9 @@ class OdometryProcessor:
             self._reject("frames_malformed", f"{err} (is depth/camera_info the depth image's own?)")
             return None
         self.fusion.await_gyro(stamp_ns)
+        kept = (lambda: scan_view.kept_depth(depth, K, self.config)) if self.scan_wanted else None
         return self._register(lambda s, **guess: self.engine.register_depth(depth, K, s, **guess), stamp_ns,
-                              str(image.header.frame_id), t0, receive_time)
+                              str(image.header.frame_id), t0, receive_time, kept)
 
     # ------------------------------------------------------------------ point clouds
     def process_pointcloud(self, msg, receive_time: float | None = None) -> FrameOutput | None:
@@ -329,13 +333,18 @@ class OdometryProcessor:
         rate = None if times is None else self.fusion.sweep_rate(stamp_ns, times)
         if rate is not None:
             extra["sweep_rate"] = rate
+        kept = None
         if cloud.organized:
             run = lambda stamp, **guess: self.engine.register_organized(  # noqa: E731
                 cloud.xyz, stamp, **extra, **guess)
+            if self.scan_wanted:
+                kept = lambda: scan_view.kept_organized(cloud.xyz, self.config)  # noqa: E731
         else:
             run = lambda stamp, **guess: self.engine.register_points(  # noqa: E731
                 cloud.xyz, stamp, ring=cloud.ring, **extra, **guess)
-        return self._register(run, stamp_ns, cloud.frame_id, t0, receive_time)
+            if self.scan_wanted:
+                kept = lambda: scan_view.kept_unorganized(self.engine, cloud.xyz, cloud.ring)  # noqa: E731
+        return self._register(run, stamp_ns, cloud.frame_id, t0, receive_time, kept)
 
     def _check_sensor(self, cloud) -> None:
         """Until a cloud fits the engine's sensor model: a cloud that does not is counted (clouds_not_fitting_sensor)
@@ -365,7 +374,7 @@ class OdometryProcessor:
             self._warn(f"the clouds do not fit the sensor model, registering them anyway: {self.sensor_fit}")
 
     # ------------------------------------------------------------------ registration
-    def _register(self, run, stamp_ns: int, frame_id: str, t0: float, receive_time: float | None):
+    def _register(self, run, stamp_ns: int, frame_id: str, t0: float, receive_time: float | None, kept=None):
         stamp = stamp_ns * 1e-9
         with self._frame_lock:
             if not self.fusion.mount(frame_id):
@@ -405,6 +414,10 @@ class OdometryProcessor:
             self.fusion.registered(last is None, guess, guess_pose, rotation, delta, out.stats, seconds)
         end = time.perf_counter()
         out.latency_ms = 1e3 * ((time.monotonic() - receive_time) if receive_time is not None else (end - t0))
+        if kept is not None:  # after the latency is taken: the view is not the odometry's cost
+            points = kept()
+            if points is not None:
+                out.scan = scan_view.scan_message(points, frame_id, stamp_ns)
         with self._count_lock:
             self.counters["frames_processed"] += 1
             self._latencies.append(out.latency_ms)

@@ -392,3 +392,26 @@ def test_node_parameter_table_and_settings_agree():
     for p in NODE_PARAMETERS:
         assert getattr(defaults, p.attribute) == p.default, p.name
         assert validate_node_value(p.name, p.default) == p.default
+
+
+def test_registered_scan_is_built_only_when_wanted():
+    """~/scan: nothing is built unless scan_wanted (the node sets it while the topic has a subscriber); an organized
+    cloud's scan is every downsample-th row and column from the first, within the range limits, at the frame's
+    stamp and frame."""
+    proc, _ = _processor([np.eye(4)] * 3)
+    proc.config = load_config("kitti_hdl64", {"downsample": 2, "sensor.min_range": 1.0})
+    rng = np.random.default_rng(1)
+    xyz = rng.uniform(-20, 20, size=(10, 20, 3))
+    xyz[0, 0] = np.nan
+    xyz[2, 2] = (0.1, 0.1, 0.1)  # closer than sensor.min_range
+    msg = convert.pointcloud2_from_xyz(xyz, frame_id="lidar", stamp=5.0)
+    assert proc.process_pointcloud(msg).scan is None
+    proc.scan_wanted = True
+    msg.header.stamp = convert.sec_to_stamp(5.1)
+    out = proc.process_pointcloud(msg)
+    scan = convert.pointcloud2_to_arrays(out.scan)
+    assert out.scan.header.frame_id == "lidar" and convert.stamp_to_ns(out.scan.header.stamp) == 5_100_000_000
+    kept = xyz[::2, ::2].reshape(-1, 3)
+    kept = kept[np.isfinite(kept).all(axis=1) & (np.linalg.norm(kept, axis=1) >= 1.0)]
+    assert len(kept) == 5 * 10 - 2
+    np.testing.assert_allclose(scan.xyz, kept.astype(np.float32))
