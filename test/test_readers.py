@@ -165,6 +165,43 @@ def test_ros1_bag_of_kitti_frames(tmp_path):
     assert m["rpe_trans_max_m"] < 0.08  # the car moves 0.09-0.17 m a frame
 
 
+def test_ros1_bag_of_tum_depth_frames(tmp_path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    seq = datasets.tum_sequence(4)
+    bag = tmp_path / "tum.bag"
+    with Writer(bag) as writer:
+        image_conn = writer.add_connection("/camera/depth/image", "sensor_msgs/msg/Image", typestore=store)
+        info_conn = writer.add_connection("/camera/depth/camera_info", "sensor_msgs/msg/CameraInfo", typestore=store)
+        for i in range(len(seq)):
+            ns = round(seq.stamps[i] * 1e9)
+            header = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](
+                sec=ns // 10**9, nanosec=ns % 10**9), frame_id="camera_depth_optical_frame")
+            mm = np.round(seq.depth_raw(i) * (1000.0 / datasets.TUM_DEPTH_FACTOR)).astype("<u2")
+            image = T["sensor_msgs/msg/Image"](header=header, height=mm.shape[0], width=mm.shape[1], encoding="16UC1",
+                                               is_bigendian=0, step=2 * mm.shape[1],
+                                               data=np.frombuffer(mm.tobytes(), np.uint8))
+            info = T["sensor_msgs/msg/CameraInfo"](
+                header=header, height=mm.shape[0], width=mm.shape[1], distortion_model="plumb_bob", D=np.zeros(5),
+                K=seq.K.reshape(-1), R=np.eye(3).reshape(-1), P=np.hstack([seq.K, np.zeros((3, 1))]).reshape(-1),
+                binning_x=0, binning_y=0, roi=T["sensor_msgs/msg/RegionOfInterest"](
+                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+            writer.write(info_conn, ns, store.serialize_ros1(info, "sensor_msgs/msg/CameraInfo"))
+            writer.write(image_conn, ns, store.serialize_ros1(image, "sensor_msgs/msg/Image"))
+    out = tmp_path / "out"
+    result = replay(bag, out, overrides={"downsample": 10}, progress=False)
+    _assert_outputs(out, 4)
+    assert result.input["preset"] == "tum_kinect"
+    estimate = np.loadtxt(out / "trajectory_kitti.txt", ndmin=2).reshape(-1, 3, 4)
+    gt = np.linalg.inv(seq.poses[0]) @ seq.poses[3]
+    moved = np.linalg.inv(np.vstack([estimate[0], [0, 0, 0, 1]])) @ np.vstack([estimate[3], [0, 0, 0, 1]])
+    # under half of the ground truth's motion over the three frames (~4 cm): registered, not held
+    assert np.linalg.norm(moved[:3, 3] - gt[:3, 3]) < 0.5 * np.linalg.norm(gt[:3, 3]), (moved, gt)
+
+
 # ------------------------------------------------------------------------------------------------ KITTI raw
 
 # A KITTI raw calibration of the IMU in the Velodyne frame (the form of <date>/calib_imu_to_velo.txt).
