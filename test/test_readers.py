@@ -418,3 +418,19 @@ def test_errors_are_one_line(tmp_path, capsys):
     assert code == 2 and "--format" in err and "invalid choice" in err
     code, err = _cli_error(capsys, OSF, "--realtime", "--out", tmp_path / "o")
     assert code == 1 and "rosbag2" in err
+
+
+@pytest.mark.parametrize("path, overrides", [(VELODYNE_PCAP, {}), (OS1_PCAP, {}), (KITTI_07, {"downsample": 6})])
+def test_plot_features_draws_the_lines_the_engine_fits(path, overrides):
+    from line_odom.plot import scan_features
+    from line_odom.processor import OdometryProcessor
+    from line_odom.replay import frame_message, node_settings
+
+    with readers.open_source(path, frames=1) as source:
+        frame = next(source.frames())
+        config, settings = node_settings("pointcloud", source.sensor.preset, {**source.sensor.overrides, **overrides})
+    out = OdometryProcessor(config, settings).process_pointcloud(frame_message(frame, "sensor"))
+    _, features, _ = scan_features(frame, config)
+    for kind in ("h_lines", "v_lines"):
+        drawn, fitted = len(features[kind]["segments"]), out.stats[kind]
+        assert fitted > 50 and abs(drawn - fitted) <= 0.1 * fitted, (kind, drawn, fitted)
