@@ -106,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", metavar="YAML", default=None, help="parameter file for recordings without their own")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
                    help="override one parameter for every recording (a manifest entry's own set wins); repeatable")
-    p.add_argument("--frames", type=_positive_int, default=None, help="replay only the first N frames of each")
+    p.add_argument("--frames", type=_positive_int, default=None, metavar="N", help="replay only the first N frames of each")
     p.add_argument("--force", action="store_true", help="replay recordings whose outputs are complete too")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
 
