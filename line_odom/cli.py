@@ -95,8 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("batch", help="replay every recording of a folder or manifest (local processes or a Dask "
                                      "cluster) and summarize the metrics")
-    p.add_argument("inputs", metavar="INPUTS", help="a folder (every recording replay reads, searched recursively) or a "
-                                                    "manifest (.yaml/.csv: path, label, params, set)")
+    p.add_argument("inputs", metavar="INPUTS", help="a folder (every recording replay reads, searched recursively) "
+                                                    "or a manifest (.yaml/.csv: path, label, params, set)")
     p.add_argument("--out", required=True, metavar="DIR", help="outputs: DIR/<label>/ per recording, DIR/summary.*")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_positive_int, default=None, metavar="N",
@@ -106,7 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", metavar="YAML", default=None, help="parameter file for recordings without their own")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
                    help="override one parameter for every recording (a manifest entry's own set wins); repeatable")
-    p.add_argument("--frames", type=_positive_int, default=None, metavar="N", help="replay only the first N frames of each")
+    p.add_argument("--frames", type=_positive_int, default=None, metavar="N",
+                   help="replay only the first N frames of each")
     p.add_argument("--force", action="store_true", help="replay recordings whose outputs are complete too")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
 

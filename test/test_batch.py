@@ -53,7 +53,7 @@ def _rows(out: Path) -> dict[str, dict]:
 
 
 def _trajectories(out: Path, labels) -> dict[str, bytes]:
-    return {label: (out / label / "trajectory_tum.txt").read_bytes() + (out / label / "trajectory_kitti.txt").read_bytes()
+    return {label: [(out / label / name).read_bytes() for name in ("trajectory_tum.txt", "trajectory_kitti.txt")]
             for label in labels}
 
 
