@@ -1,7 +1,8 @@
 """Odometry over an archive of recordings: ``line_odom batch INPUTS --out DIR``.
 
-Each recording is one task that runs :func:`line_odom.replay.replay_bag` (in-process, deterministic) and writes
-replay's outputs to ``DIR/<label>/``. Tasks run on Dask's distributed engine: ``workers=N`` starts a
+Each recording is one task that runs replay (:func:`line_odom.replay.replay`, which reads every format
+line_odom.readers knows; without those, :func:`line_odom.replay.replay_bag` on the bag or on the bag a KITTI or TUM
+folder is converted to), in-process and deterministic, and writes replay's outputs to ``DIR/<label>/``. Tasks run on Dask's distributed engine: ``workers=N`` starts a
 ``LocalCluster`` of N single-threaded worker processes for the run, ``cluster=ADDRESS`` submits the same tasks
 to an existing scheduler (whose workers must see INPUTS and DIR at the same paths and run the same line_odom).
 
