@@ -415,3 +415,17 @@ def test_registered_scan_is_built_only_when_wanted():
     kept = kept[np.isfinite(kept).all(axis=1) & (np.linalg.norm(kept, axis=1) >= 1.0)]
     assert len(kept) == 5 * 10 - 2
     np.testing.assert_allclose(scan.xyz, kept.astype(np.float32))
+
+
+def test_the_node_imports_no_offline_tooling():
+    """The node's runtime path (node, lifecycle node, processor) imports no bag, dataset, replay or CLI code."""
+    import subprocess
+    import sys
+
+    code = ("import sys, line_odom.node, line_odom.lifecycle_node; "
+            "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('line_odom', 'rosbags')))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    offline = ("line_odom.bags", "line_odom.datasets", "line_odom.replay", "line_odom.cli", "line_odom.readers",
+               "line_odom.batch", "line_odom.evaluation", "line_odom.sim", "rosbags")
+    assert "line_odom.processor" in loaded
+    assert [m for m in loaded if m.startswith(offline)] == []
