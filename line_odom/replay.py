@@ -221,6 +221,9 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
                 raise ValueError(f"{reader.path}: imu topic {imu_topic} is "
                                  f"{found + ', expected ' + bags.IMU if found else 'not in the bag'}")
             overrides = {**({} if realtime else {"imu.window": 86400.0}), **(overrides or {}), "imu.enabled": True}
+        sensor = _bag_sensor(reader, inp) if params is None else None
+        if sensor is not None:
+            params, overrides = sensor.preset, {**sensor.overrides, **(overrides or {})}
         config, settings = node_settings(inp.kind, params, overrides)
         if settings.base_to_sensor_from_tf and reader.topics.get(bags.TF_STATIC_TOPIC) != bags.TF_MESSAGE:
             raise ValueError(f"{reader.path}: base_to_sensor_from_tf is set but the bag has no {bags.TF_STATIC_TOPIC} "
@@ -244,8 +247,10 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
         if ground_truth is not None:
             gt = _ground_truth_file(ground_truth, run)
         preset = params or PRESET_FOR_INPUT[inp.kind]
-        info = {"format": "rosbag2", "path": str(bag), "topic": inp.topic, "preset": preset, "overrides": {},
-                "sensor": f"the {inp.kind} preset" if params is None else "--params",
+        info = {"format": "rosbag2", "path": str(bag), "topic": inp.topic, "preset": preset,
+                "overrides": sensor.overrides if sensor is not None else {},
+                "sensor": sensor.reason if sensor is not None else (
+                    "--params" if params != PRESET_FOR_INPUT[inp.kind] else f"the {inp.kind} preset"),
                 "ground_truth": str(ground_truth) if ground_truth is not None else (
                     bags.GROUND_TRUTH_TOPIC + " (nav_msgs/Odometry)" if gt is not None else None), "notes": []}
         metrics, files = write_results(out_dir, run, gt, title or f"{Path(bag).name} ({inp.topic})",
@@ -259,6 +264,23 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
         if out_bag is not None:
             files.append(write_output_bag(out_bag, run, reader, out_bag_storage))
     return ReplayResult(metrics, files, run, gt, info)
+
+
+def _bag_sensor(reader: bags.BagReader, inp: ReplayInput):
+    """The preset the bag's first cloud suggests (line_odom.readers.sensor_preset), None for depth or a first message
+    that is no cloud (the processor reports it)."""
+    if inp.kind != "pointcloud":
+        return None
+    from rclpy.serialization import deserialize_message
+
+    from line_odom.readers import sensor_preset
+
+    try:
+        message = next(iter(reader.messages([inp.topic])))
+        cloud = convert.pointcloud2_to_arrays(deserialize_message(message.raw, _rclpy_types(inp.kind)["pointcloud"]))
+    except Exception:  # noqa: BLE001 - rclpy's decode errors and malformed clouds: counted when replayed
+        return None
+    return sensor_preset.for_points(cloud.xyz, cloud.ring, f"clouds on {inp.topic}")
 
 
 def _bag_frame(reader: bags.BagReader, inp: ReplayInput, index: int):

@@ -8,8 +8,8 @@ from typing import Iterator
 
 import numpy as np
 
-from line_odom.readers import pcap_packets
-from line_odom.readers.base import Frame, ReaderError, Sensor, Source
+from line_odom.readers import pcap_packets, sensor_preset
+from line_odom.readers.base import Frame, ReaderError, Source
 
 
 def metadata_beside(pcap: Path) -> Path | None:
@@ -66,11 +66,9 @@ class OusterSource(Source):
             self.count = int(self._src.frames_num[0]) if self._src.is_indexed else None
             if self.count is not None and frames is not None:
                 self.count = min(self.count, frames)
-        overrides = {} if self.beams >= 128 else {"downsample": 1}
-        self.sensor = Sensor("ouster_os128", overrides,
-                             f"Ouster {self.product} ({self.beams} beams x {self.columns} columns, from the "
-                             f"{'osf' if self.osf else 'metadata json'}): organized scans, their rows the beams"
-                             + ("" if not overrides else "; every beam kept (downsample 1)"))
+        self.sensor = sensor_preset.for_organized(
+            self.beams, f"Ouster {self.product} ({self.beams} beams x {self.columns} columns, from the "
+                        f"{'osf' if self.osf else 'metadata json'})")
 
     def close(self) -> None:
         close = getattr(self._src, "close", None)

@@ -70,15 +70,8 @@ class Ros1Bag(Source):
             raise ReaderError(f"{self.path}: topic {self.topic} has no messages")
         if self.kind == "pointcloud":
             first = self._cloud(next(self._messages([self.topic]))[1])
-            xyz = first.xyz.reshape(-1, 3)
             self.frame_id = first.frame_id or "sensor"
-            if first.organized:
-                self.sensor = Sensor("ouster_os128" if first.xyz.shape[0] >= 128 else "vlp16", {},
-                                     f"organized clouds of {first.xyz.shape[0]} rows on {self.topic}")
-            elif first.ring is not None:
-                self.sensor = sensor_preset.for_rings(xyz, first.ring, f"clouds on {self.topic}")
-            else:
-                self.sensor = sensor_preset.for_cloud(xyz, f"clouds on {self.topic}")
+            self.sensor = sensor_preset.for_points(first.xyz, first.ring, f"clouds on {self.topic}")
         if topics.get(GROUND_TRUTH_TOPIC) == ODOMETRY:
             self.ground_truth = self._ground_truth()
             self.ground_truth_source = f"{GROUND_TRUTH_TOPIC} (nav_msgs/Odometry)"

@@ -11,7 +11,7 @@ import numpy as np
 
 from line_odom import bags, convert, datasets
 from line_odom.readers import sensor_preset
-from line_odom.readers.base import Frame, ReaderError, Sensor, Source, nominal_stamps_ns, sorted_files
+from line_odom.readers.base import Frame, ReaderError, Source, nominal_stamps_ns, sorted_files
 
 SUFFIXES = (".bin", ".pcd", ".ply")
 KITTI_RINGS = 64  # a .bin whose point order splits into 64 lines is a KITTI HDL-64E scan (bags.kitti_rings)
@@ -125,14 +125,7 @@ class ScanFolder(Source):
             self.files = self.files[:frames]
         self.count = len(self.files)
         first = self._frame(0)
-        what = f"{self.suffix} scans"
-        if first.xyz.ndim == 3:
-            self.sensor = Sensor("ouster_os128" if first.xyz.shape[0] >= 128 else "vlp16", {},
-                                 f"{what}: organized, {first.xyz.shape[0]} rows")
-        elif first.ring is not None:
-            self.sensor = sensor_preset.for_rings(first.xyz, first.ring.astype(np.int64), what)
-        else:
-            self.sensor = sensor_preset.for_cloud(first.xyz, what)
+        self.sensor = sensor_preset.for_points(first.xyz, first.ring, f"{self.suffix} scans")
 
     def _frame(self, i: int) -> Frame:
         return frame_from_fields(READERS[self.suffix](self.files[i]), self.stamps_ns[i], self.files[i])

@@ -40,6 +40,23 @@ def for_rings(xyz: np.ndarray, ring: np.ndarray, what: str) -> Sensor:
                   f"model of its beams)")
 
 
+def for_organized(rows: int, what: str) -> Sensor:
+    """The preset for organized clouds (rows = beams, so no sensor model is needed): ouster_os128, every row kept under
+    its 128."""
+    overrides = {} if rows >= 128 else {"downsample": 1}
+    return Sensor("ouster_os128", overrides, f"{what}: organized clouds of {rows} rows"
+                  + ("" if not overrides else "; every row kept (downsample 1)"))
+
+
+def for_points(xyz: np.ndarray, ring: np.ndarray | None, what: str) -> Sensor:
+    """The preset for one cloud as a reader gives it: (N, 3) with or without rings, or organized (H, W, 3)."""
+    if xyz.ndim == 3:
+        return for_organized(xyz.shape[0], what)
+    if ring is not None:
+        return for_rings(xyz, np.asarray(ring).astype(np.int64), what)
+    return for_cloud(xyz, what)
+
+
 def for_cloud(xyz: np.ndarray, what: str) -> Sensor:
     """The preset for a cloud without rings: the first LiDAR preset whose sensor model the cloud fits, else
     kitti_hdl64 (the processor then warns with what to set)."""
