@@ -434,3 +434,13 @@ def test_plot_features_draws_the_lines_the_engine_fits(path, overrides):
     for kind in ("h_lines", "v_lines"):
         drawn, fitted = len(features[kind]["segments"]), out.stats[kind]
         assert fitted > 50 and abs(drawn - fitted) <= 0.1 * fitted, (kind, drawn, fitted)
+
+
+def test_rosbag2_of_another_lidar_gets_the_preset_its_clouds_suggest(tmp_path):
+    with readers.open_source(VELODYNE_PCAP, frames=3) as source:
+        frames = [(f.stamp_ns * 1e-9, f.xyz, f.ring, f.intensity, None) for f in source.frames()]
+    bags.lidar_frames_to_bag(tmp_path / "bag", frames, topic="/velodyne_points", frame_id="velodyne")
+    result = replay(tmp_path / "bag", tmp_path / "out", progress=False)
+    _assert_outputs(tmp_path / "out", 3)
+    assert result.input["preset"] == "vlp16" and result.input["overrides"]["sensor.rows"] == 32
+    assert result.metrics["frames_with_ring"] == 3 and result.run.counters["clouds_not_fitting_sensor"] == 0
