@@ -111,50 +111,15 @@ def validate_node_value(name: str, value: Any) -> Any:
             return vector
         frames.pose_from_params(values, name)  # validates length and values
         return [float(v) for v in values]
-    if spec.type is str and not spec.choices and value == "":
-        raise ValueError(f"{name}: expected str (a non-empty name), got ''")
-    entry = ConfigEntry(spec.name, spec.type, spec.default, spec.description, spec.min, spec.max)
-    if spec.type is str and not spec.choices:
-        if not isinstance(value, str):
-            raise ValueError(f"{name}: expected str, got {value!r}")
+    if spec.type is str and not spec.choices:  # a frame name: any non-empty string
+        if not isinstance(value, str) or not value:
+            raise ValueError(f"{name}: expected str (a non-empty name), got {value!r}")
         return value
+    entry = ConfigEntry(spec.name, spec.type, spec.default, spec.description, spec.min, spec.max)
     return validate_entry(entry, value, spec.choices)
 
 
-def _default(spec: NodeParameter):
-    return list(spec.default) if isinstance(spec.default, list) else spec.default
-
-
-@dataclasses.dataclass
-class NodeSettings:
-    """The node's own settings (the engine's are in line_odom_core.Config): one attribute per NODE_PARAMETERS row,
-    the dots of its name as underscores."""
-
-    input: str = "pointcloud"
-    odom_frame: str = "odom"
-    base_frame: str = "base_link"
-    publish_tf: bool = True
-    base_to_sensor: list = dataclasses.field(default_factory=lambda: _default(_BY_NAME["base_to_sensor"]))
-    base_to_sensor_from_tf: bool = False
-    initial_pose: list = dataclasses.field(default_factory=lambda: _default(_BY_NAME["initial_pose"]))
-    path_max_poses: int = 1000
-    path_period: float = 0.0
-    qos_reliable: bool = False
-    qos_depth: int = 5
-    max_points: int = 2_000_000
-    max_pixels: int = 4_000_000
-    diagnostics_period: float = 1.0
-    guess_enabled: bool = False
-    guess_tolerance: float = 0.1
-    guess_window: float = 5.0
-    imu_enabled: bool = False
-    imu_base_to_imu: list = dataclasses.field(default_factory=lambda: _default(_BY_NAME["imu.base_to_imu"]))
-    imu_gyro_bias: list = dataclasses.field(default_factory=lambda: _default(_BY_NAME["imu.gyro_bias"]))
-    imu_bias_gain: float = 0.05
-    imu_wait: float = 0.03
-    imu_max_gap: float = 0.05
-    imu_window: float = 5.0
-
+class _SettingsMethods:
     @staticmethod
     def attribute(name: str) -> str:
         return name.replace(".", "_")
@@ -177,6 +142,19 @@ class NodeSettings:
 
     def as_dict(self) -> dict[str, Any]:
         return {p.name: getattr(self, p.attribute) for p in NODE_PARAMETERS}
+
+
+def _field(spec: NodeParameter):
+    if isinstance(spec.default, list):
+        return dataclasses.field(default_factory=lambda d=spec.default: list(d))
+    return dataclasses.field(default=spec.default)
+
+
+# The node's own settings (the engine's are in line_odom_core.Config): one attribute per NODE_PARAMETERS row, named
+# by its dotted name with underscores (qos.depth -> qos_depth), its default the row's: the table is the one source.
+NodeSettings = dataclasses.make_dataclass(
+    "NodeSettings", [(p.attribute, p.type, _field(p)) for p in NODE_PARAMETERS], bases=(_SettingsMethods,),
+    namespace={"__module__": __name__})  # (make_dataclass's own module= is Python 3.12+)
 
 
 def settings_from_parameters(preset_or_path: str = "kitti_hdl64",
