@@ -73,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot-features", metavar="N", type=int, nargs="?", const=0, default=None, dest="plot_features",
                    help="also draw frame N's points and fitted H/V lines, top view, to DIR/features.png (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory for trajectories, metrics and plot")
-    p.add_argument("--params", metavar="YAML", default=None, help="ROS 2 parameter file for the node")
+    p.add_argument("--params", metavar="YAML", default=None, help="ROS 2 parameter file (or preset name) for the node "
+                                                              "(default: the preset the recording suggests)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
                    help="override one parameter (engine or node), e.g. --set downsample=6; repeatable")
     p.add_argument("--realtime", action="store_true",

@@ -204,8 +204,10 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
     imu_topic: a sensor_msgs/Imu topic of the bag whose gyro turns the node's prediction (imu.enabled); ground_truth:
     a TUM / KITTI trajectory file instead of the bag's /ground_truth; plot_features: the frame whose lines
     features.png shows."""
-    if params is not None and not Path(params).is_file():
-        raise FileNotFoundError(f"{params}: no such parameter file")
+    from line_odom_core.config import PRESETS
+
+    if params is not None and not Path(params).is_file() and params not in PRESETS:
+        raise FileNotFoundError(f"{params}: no such parameter file (or preset: {', '.join(sorted(PRESETS))})")
     with bags.BagReader(bag) as reader:
         inp = select_input(reader, topic)
         if guess_topic is not None:
@@ -436,7 +438,8 @@ def replay(path: str | Path, out_dir: str | Path, *, format: str | None = None, 
            imu_topic: str | None = None) -> ReplayResult:
     """Replay any recording line_odom reads (format guessed from the path unless given: see
     line_odom.readers.FORMATS) and write trajectories, metrics.json and plots to out_dir; returns the metrics and
-    files. realtime, rate, guess_topic and imu_topic apply to rosbag2 bags only."""
+    files. guess_topic and imu_topic apply to rosbag2 bags only; realtime replays another format as a rosbag2 of the
+    messages its frames become, written to a temporary folder first."""
     from line_odom import readers
 
     format = format or readers.guess_format(path)
@@ -447,11 +450,57 @@ def replay(path: str | Path, out_dir: str | Path, *, format: str | None = None, 
                             title=title, rate=rate, guess_topic=guess_topic, imu_topic=imu_topic,
                             ground_truth=ground_truth, plot_features=plot_features)
         return result
-    rosbag_only = [name for name, given in (("--realtime", realtime), ("--guess-topic", guess_topic),
-                                            ("--imu-topic", imu_topic)) if given]
+    rosbag_only = [name for name, given in (("--guess-topic", guess_topic), ("--imu-topic", imu_topic)) if given]
     if rosbag_only:
         raise ValueError(f"{', '.join(rosbag_only)}: for rosbag2 bags only, {path} is {format}")
     with readers.open_source(path, format, frames=frames, topic=topic, meta=meta) as source:
-        return replay_source(source, out_dir, params=params, overrides=overrides, progress=progress, title=title,
-                             ground_truth=ground_truth, plot_features=plot_features, out_bag=out_bag,
-                             out_bag_storage=out_bag_storage)
+        if not realtime:
+            return replay_source(source, out_dir, params=params, overrides=overrides, progress=progress, title=title,
+                                 ground_truth=ground_truth, plot_features=plot_features, out_bag=out_bag,
+                                 out_bag_storage=out_bag_storage)
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="line_odom_replay_") as scratch:
+            bag = source_to_bag(source, Path(scratch) / "bag")
+            suggested = {} if params is not None else dict(source.sensor.overrides)
+            result = replay_bag(bag, out_dir, params=params or source.sensor.preset,
+                                overrides={**suggested, **(overrides or {})}, realtime=True, rate=rate,
+                                out_bag=out_bag, out_bag_storage=out_bag_storage, progress=progress,
+                                title=title or f"{source.path.name} ({source.format})", ground_truth=ground_truth,
+                                plot_features=plot_features)
+        result.input.update(format=source.format, path=str(source.path), preset=params or source.sensor.preset,
+                            overrides=suggested, sensor=source.sensor.reason, notes=list(source.notes))
+        if ground_truth is None:
+            result.input["ground_truth"] = source.ground_truth_source or None
+        result.metrics["input"] = result.input
+        (Path(out_dir) / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
+        return result
+
+
+SOURCE_POINTS_TOPIC = "/points"  # the topics of source_to_bag's bags
+SOURCE_DEPTH_TOPIC = "/depth/image"
+SOURCE_INFO_TOPIC = "/depth/camera_info"
+
+
+def source_to_bag(source, bag: str | Path, storage: str = "sqlite3") -> Path:
+    """A reader's frames as a rosbag2: the messages frame_message makes (and a CameraInfo beside each depth image),
+    logged at their stamps, and the source's ground truth on /ground_truth."""
+    from rclpy.serialization import serialize_message
+
+    bag = Path(bag)
+    with bags.BagWriter(bag, storage) as writer:
+        for frame in source.frames():
+            msg = frame_message(frame, source.frame_id)
+            if frame.depth is not None:
+                info = convert.camera_info_from_K(source.K, frame.depth.shape[1], frame.depth.shape[0],
+                                                  frame_id=source.frame_id, stamp=msg.header.stamp)
+                writer.write_raw(SOURCE_INFO_TOPIC, bags.CAMERA_INFO, frame.stamp_ns, serialize_message(info))
+                writer.write_raw(SOURCE_DEPTH_TOPIC, bags.IMAGE, frame.stamp_ns, serialize_message(msg))
+            else:
+                writer.write_raw(SOURCE_POINTS_TOPIC, bags.POINTCLOUD2, frame.stamp_ns, serialize_message(msg))
+        if source.ground_truth is not None and source.ground_truth.stamps is not None:
+            for stamp, T in zip(source.ground_truth.stamps, source.ground_truth.poses):
+                ns = round(float(stamp) * 1e9)
+                writer.write(bags.GROUND_TRUTH_TOPIC, bags.ODOMETRY, ns,
+                             writer.msgs.odometry(ns, bags.GROUND_TRUTH_FRAME, source.frame_id, T))
+    return bag

@@ -416,8 +416,8 @@ def test_errors_are_one_line(tmp_path, capsys):
     assert code == 1 and "other.json" in err and "cannot read the metadata json" in err
     code, err = _cli_error(capsys, OSF, "--format", "lidar", "--out", tmp_path / "o")
     assert code == 2 and "--format" in err and "invalid choice" in err
-    code, err = _cli_error(capsys, OSF, "--realtime", "--out", tmp_path / "o")
-    assert code == 1 and "rosbag2" in err
+    code, err = _cli_error(capsys, OSF, "--imu-topic", "/imu", "--out", tmp_path / "o")
+    assert code == 1 and "rosbag2" in err and "--imu-topic" in err
 
 
 @pytest.mark.parametrize("path, overrides", [(VELODYNE_PCAP, {}), (OS1_PCAP, {}), (KITTI_07, {"downsample": 6})])

@@ -432,3 +432,18 @@ def test_replay_and_replay_realtime_import_each_other_not():
     code = ("import sys, line_odom.replay_realtime; "
             "assert 'line_odom.replay' not in sys.modules, 'replay_realtime imports replay'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_realtime_replay_of_an_ouster_pcap(tmp_path, ros_env):
+    """--realtime on a recording that is no bag: its frames become a temporary bag published to the node; the
+    poses are the in-process run's (3 scans, each one registered)."""
+    rec = datasets.SHARED_DATA / "sensor_recordings"
+    args = [str(rec / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap"), "--ground-truth",
+            str(rec / "OS-1-128_v2.3.0_1024x10_lb_n3_poses_kitti.txt"), "--quiet"]
+    assert main(["replay", *args, "--out", str(tmp_path / "in")]) == 0
+    run = _replay_process([*args, "--out", str(tmp_path / "rt"), "--realtime", "--rate", "0.5"], ros_env)
+    assert run.returncode == 0, run.stdout
+    offline, live = _metrics(tmp_path / "in"), _metrics(tmp_path / "rt")
+    assert live["input"]["format"] == "ouster" and live["input"]["preset"] == "ouster_os128"
+    assert live["frames"] == 3 and live["frames_with_ground_truth"] == 3, live
+    assert live["rpe_trans_max_m"] < offline["rpe_trans_max_m"] + 0.01, (live, offline)
