@@ -314,10 +314,10 @@ def _bag_frame(reader: bags.BagReader, inp: ReplayInput, index: int):
 
 def frame_message(frame, frame_id: str):
     """A reader's Frame as the message a driver publishes: PointCloud2 (x, y, z, intensity, ring, time where the
-    frame has them; organized when the frame is) or a 16UC1 depth Image."""
+    frame has them; organized when the frame is) or a 32FC1 depth Image (metres as read: no rounding to mm)."""
     stamp = convert.ns_to_stamp(frame.stamp_ns)
     if frame.depth is not None:
-        return convert.depth_to_image(frame.depth, frame_id=frame_id, stamp=stamp)
+        return convert.depth_to_image(frame.depth, encoding="32FC1", frame_id=frame_id, stamp=stamp)
     return convert.pointcloud2_from_xyz(frame.xyz, intensity=frame.intensity, ring=frame.ring, time=frame.time,
                                         frame_id=frame_id, stamp=stamp)
 
