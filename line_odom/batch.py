@@ -675,6 +675,15 @@ class BatchResult:
         return [r for r in self.rows if r["status"] == "failed"]
 
 
+def _size_bytes(path: Path) -> int:
+    try:
+        if path.is_file():
+            return path.stat().st_size
+        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+    except OSError:
+        return 0
+
+
 def _skipped_row(rec: Recording, record: dict) -> dict:
     row = {k: record.get(k) for k in ("label", "input", "kind", "seconds", "host", "commit", "metrics")}
     return {**row, "label": rec.label, "status": "skipped", "error": "", "attempts": 0}
@@ -710,6 +719,8 @@ def run_batch(inputs: str | Path, out_dir: str | Path, *, workers: int | None = 
             rows[rec.label] = _skipped_row(rec, record)
         else:
             todo.append(rec)
+    # largest recordings first, so that the last task to finish is a short one (rows keep the recordings' order)
+    todo.sort(key=lambda rec: -_size_bytes(rec.path))
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     n_workers = min(workers or cores, max(len(todo), 1))
     engine = f"Dask scheduler {cluster}" if cluster else f"local, {n_workers} worker process(es)"
