@@ -729,6 +729,7 @@ def run_batch(inputs: str | Path, out_dir: str | Path, *, workers: int | None = 
     bar.to_run = len(todo)
     for row in rows.values():
         bar.count(row)
+    bar.draw()
 
     def finish(row: dict) -> None:
         rows[row["label"]] = row
