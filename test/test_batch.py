@@ -210,12 +210,11 @@ def test_a_worker_that_dies_is_retried_once_then_reported(archive, cluster, tmp_
 
 
 def test_ctrl_c_leaves_complete_outputs_or_none(archive, tmp_path):
-    root, paths = archive
-    # enough recordings after the first that the run is still going when the signal comes
-    labels = ["kitti__04_bag"] + [f"kitti__00_{i}" for i in range(5)]
+    _, paths = archive
+    # six recordings on one worker: the run is still going when the signal comes after the first
+    labels = [f"kitti__04_{i}" for i in range(6)]
     manifest = tmp_path / "six.csv"
-    manifest.write_text("path,label,set\n" + "".join(
-        f"{paths['kitti__04_bag'] if k == labels[0] else paths['kitti__00']},{k},downsample=6\n" for k in labels))
+    manifest.write_text("path,label,set\n" + "".join(f"{paths['kitti__04_bag']},{k},downsample=6\n" for k in labels))
     out = tmp_path / "out"
     # a new session, signalled as a terminal's Ctrl-C signals its foreground group: the batch and its workers
     proc = subprocess.Popen([sys.executable, "-m", "line_odom", "batch", str(manifest), "--out", str(out),
@@ -223,9 +222,9 @@ def test_ctrl_c_leaves_complete_outputs_or_none(archive, tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (out / "kitti__04_bag").is_dir():
+        while time.monotonic() < deadline and not any((out / k).is_dir() for k in labels):
             time.sleep(0.02)
-        assert (out / "kitti__04_bag").is_dir(), "the first recording never finished"
+        assert any((out / k).is_dir() for k in labels), "no recording finished"
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:
@@ -234,15 +233,14 @@ def test_ctrl_c_leaves_complete_outputs_or_none(archive, tmp_path):
     assert proc.returncode == 130 and err.strip() == "line_odom: interrupted", err
     assert not (out / batch.TMP_DIR).exists()
     rows = _rows(out)
-    assert rows["kitti__04_bag"]["status"] == "ok"
-    assert any(rows[k]["status"] == "interrupted" for k in labels[1:])
-    for label in labels[1:]:
+    assert 1 <= sum(rows[k]["status"] == "ok" for k in labels) < len(labels)
+    for label in labels:
         if (out / label).exists():  # finished before the workers stopped: complete
             assert all((out / label / name).is_file() for name in OUTPUT_FILES) and rows[label]["status"] == "ok"
         else:
             assert rows[label]["status"] == "interrupted" and rows[label]["error"] == "not run (interrupted)"
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [batch.SUMMARY_CSV, batch.SUMMARY_MD, batch.SUMMARY_PLOT] + [k for k in rows if (out / k).is_dir()])
+        [batch.SUMMARY_CSV, batch.SUMMARY_MD, batch.SUMMARY_PLOT] + [k for k in labels if (out / k).is_dir()])
 
 
 def test_discovery_without_the_readers_and_its_folder_conversion(archive, tmp_path, monkeypatch):
