@@ -1,8 +1,7 @@
 """Odometry over an archive of recordings: ``line_odom batch INPUTS --out DIR``.
 
-Each recording is one task that runs replay (:func:`line_odom.replay.replay`, which reads every format
-line_odom.readers knows; without those, :func:`line_odom.replay.replay_bag` on the bag or on the bag a KITTI or TUM
-folder is converted to), in-process and deterministic, and writes replay's outputs to ``DIR/<label>/``. Tasks run on Dask's distributed engine: ``workers=N`` starts a
+Each recording (any format :func:`line_odom.readers.guess_format` recognizes) is one task that runs
+:func:`line_odom.replay.replay` in-process (deterministic) and writes replay's outputs to ``DIR/<label>/``. Tasks run on Dask's distributed engine: ``workers=N`` starts a
 ``LocalCluster`` of N single-threaded worker processes for the run, ``cluster=ADDRESS`` submits the same tasks
 to an existing scheduler (whose workers must see INPUTS and DIR at the same paths and run the same line_odom).
 
@@ -43,8 +42,6 @@ REPLAY_OUTPUTS = ("trajectory_tum.txt", "trajectory_kitti.txt", "metrics.json")
 MANIFEST_FIELDS = ("path", "label", "params", "set")
 # recording files whose format cannot be guessed because they are unreadable: still tasks, so they fail visibly
 RECORDING_SUFFIXES = {".pcap": "velodyne", ".pcapng": "velodyne", ".osf": "ouster", ".bag": "ros1"}
-KINDS_HELP = ("a rosbag2 directory (metadata.yaml), a KITTI odometry sequence folder (velodyne/*.bin, times.txt) or "
-              "a TUM RGB-D folder (depth.txt, depth/)")
 # the metric keys in the order evaluation prints them; others follow alphabetically
 METRIC_ORDER = ("frames", "frames_dropped", "frames_with_ground_truth", "path_length_m", "rpe_trans_mean_m",
                 "rpe_trans_max_m", "rpe_rot_mean_deg", "rpe_rot_max_deg", "ate_rmse_m", "kitti_t_err_pct",
@@ -83,34 +80,12 @@ class Recording:
                 "overrides": {k: self.overrides[k] for k in sorted(self.overrides)}, "frames": frames}
 
 
-def _readers():
-    """line_odom.readers when it is there to guess formats (replay then reads them all), else None."""
-    try:
-        from line_odom import readers
-    except ImportError:
-        return None
-    return readers if callable(getattr(readers, "guess_format", None)) else None
-
-
-def _detect_builtin(path: Path) -> str | None:
-    if not path.is_dir():
-        return None
-    if (path / "metadata.yaml").is_file():
-        return "rosbag2"
-    if (path / "velodyne").is_dir() and (path / "times.txt").is_file():
-        return "kitti"
-    if (path / "depth.txt").is_file() and (path / "depth").is_dir():
-        return "tum"
-    return None
-
-
 def detect(path: str | Path) -> str | None:
-    """The format of the recording at `path` (line_odom.readers' name for it: "rosbag2", "kitti", "tum", ...), or
-    None if it is none replay reads."""
+    """The format of the recording at `path` as line_odom.readers names it ("rosbag2", "kitti", "tum", "ouster",
+    ...), or None if it is none replay reads."""
+    from line_odom import readers
+
     path = Path(path)
-    readers = _readers()
-    if readers is None:
-        return _detect_builtin(path)
     try:
         return readers.guess_format(path)
     except Exception:  # not a recording, or a recording file that cannot be read: that one is a failed task
@@ -277,7 +252,10 @@ def recordings_from(inputs: str | Path, *, params: str | None = None, overrides:
     else:
         recordings = discover(inputs, exclude=exclude)
         if not recordings:
-            raise ValueError(f"{inputs}: no recording found (expected {KINDS_HELP}, or a .yaml/.csv manifest)")
+            from line_odom import readers
+
+            raise ValueError(f"{inputs}: no recording found (expected recordings replay reads, formats "
+                             f"{', '.join(readers.FORMATS)}, or a .yaml/.csv manifest)")
     if params is not None:
         params = str(Path(params).resolve())
     for rec in recordings:
@@ -333,24 +311,12 @@ def read_complete(out_dir: Path, spec: dict) -> dict | None:
     return record
 
 
-def _replay(rec: Recording, out: Path, work: Path, frames: int | None) -> dict:
-    from line_odom import bags, replay
+def _replay(rec: Recording, out: Path, frames: int | None) -> dict:
+    from line_odom import readers, replay
 
-    if rec.kind is None:
-        raise ValueError(f"{rec.path}: not a recording line_odom replay can read (expected {KINDS_HELP})")
-    if hasattr(replay, "replay") and _readers() is not None:  # replay reads every format itself
-        result = replay.replay(rec.path, out, format=rec.kind, params=rec.params, overrides=rec.overrides,
-                               frames=frames, progress=False, title=rec.label)
-        return result.metrics
-    source = rec.path
-    if rec.kind in ("kitti", "tum"):
-        # replay reads bags: the folder becomes one first, in the task's scratch space, cut to `frames`
-        source = work / "input_bag"
-        convert = bags.kitti_to_bag if rec.kind == "kitti" else bags.tum_to_bag
-        convert(rec.path, source, frames=frames)
-    result = replay.replay_bag(source, out, params=rec.params, overrides=rec.overrides, frames=frames,
-                               progress=False, title=rec.label)
-    return result.metrics
+    kind = rec.kind or readers.guess_format(rec.path)  # none: the readers' error, naming the formats expected
+    return replay.replay(rec.path, out, format=kind, params=rec.params, overrides=rec.overrides, frames=frames,
+                         progress=False, title=rec.label).metrics
 
 
 def run_recording(rec: Recording, out_root: str | Path, frames: int | None = None) -> dict:
@@ -368,7 +334,7 @@ def run_recording(rec: Recording, out_root: str | Path, frames: int | None = Non
     try:
         out = work / "out"
         try:
-            row["metrics"] = numeric_metrics(_replay(rec, out, work, frames))
+            row["metrics"] = numeric_metrics(_replay(rec, out, frames))
         except Exception as exc:  # a failing recording is a row of the summary, not the end of the batch
             row["error"] = one_line_error(exc)
             row["seconds"] = time.monotonic() - start

@@ -84,8 +84,10 @@ def test_local_workers_and_a_cluster_give_the_same_trajectories_and_the_summary(
             assert (out / label / name).stat().st_size > 0, (label, name)
     failed = rows[BROKEN]
     assert failed["status"] == "failed" and failed["rpe_trans_mean_m"] == "" and not (out / BROKEN).exists()
-    assert failed["error"].startswith(f"{paths[BROKEN]}: cannot open the bag: corrupt, truncated or not a rosbag2")
-    assert "\n" not in failed["error"]
+    assert failed["error"].startswith(f"{paths[BROKEN]}: ") and "truncated" in failed["error"]
+    # the one line `line_odom replay` prints for it
+    assert main(["replay", str(paths[BROKEN]), "--out", str(tmp_path / "replayed"), "--quiet"]) == 1
+    assert capsys.readouterr().err.strip() == f"line_odom replay: error: {failed['error']}"
     values = [json.loads((out / k / "metrics.json").read_text())["rpe_trans_mean_m"] for k in OK_LABELS]
     assert rows["mean"]["status"] == "aggregate"
     assert float(rows["mean"]["rpe_trans_mean_m"]) == pytest.approx(statistics.fmean(values), rel=1e-5)
@@ -149,8 +151,12 @@ def test_manifests_yaml_and_csv(tmp_path):
     assert recs[0].overrides == {"downsample": 8, "threads": 1}  # the entry's own set wins
     assert recs[1].overrides == {"downsample": 6, "threads": 1, "ransac.seed": 3, "input": "pointcloud"}
     assert recs[2].kind is None  # not a recording: that task fails, the others run
+    # the error is replay's readers' own, naming the path
     row = batch.run_recording(recs[2], tmp_path / "out")
-    assert row["status"] == "failed" and row["error"].startswith(f"{tmp_path / 'runs' / 'c'}: not a recording")
+    assert row["status"] == "failed" and row["error"].startswith(f"{tmp_path / 'runs' / 'c'}: no such")
+    (tmp_path / "runs" / "c").mkdir()
+    row = batch.run_recording(recs[2], tmp_path / "out")
+    assert row["status"] == "failed" and row["error"].startswith(f"{tmp_path / 'runs' / 'c'}: unknown recording format")
 
     csv_manifest = tmp_path / "m.csv"
     csv_manifest.write_text("# archive\npath,label,set,params\nruns/a,,downsample=8; ransac.seed=2,\n"
@@ -243,23 +249,22 @@ def test_ctrl_c_leaves_complete_outputs_or_none(archive, tmp_path):
         [batch.SUMMARY_CSV, batch.SUMMARY_MD, batch.SUMMARY_PLOT] + [k for k in labels if (out / k).is_dir()])
 
 
-def test_discovery_without_the_readers_and_its_folder_conversion(archive, tmp_path, monkeypatch):
-    """Where line_odom.readers is absent, batch finds bags, KITTI and TUM folders itself and converts the folders to
-    bags for replay_bag: the same recordings, the same kinds."""
+def test_discovery_finds_each_recording_once(archive, tmp_path):
     root, paths = archive
     (root / "kitti" / "loop").symlink_to(root / "kitti")  # a link back up is not followed twice
+    (root / "kitti" / "04_bag" / "stray.txt").write_text("inside a recording: not searched\n")
     try:
-        found = {r.label: r.kind for r in batch.discover(root)}
-        monkeypatch.setattr(batch, "_readers", lambda: None)
-        assert {r.label: r.kind for r in batch.discover(root)} == found
+        found = batch.discover(root)
     finally:
         (root / "kitti" / "loop").unlink()
-    assert sorted(found) == sorted(OK_LABELS + [BROKEN])
-    row = batch.run_recording(batch.Recording(paths["kitti__04"], "k", "kitti", overrides={"downsample": 6}), tmp_path)
-    assert row["status"] == "ok", row["error"]
-    assert row["metrics"]["frames"] == KITTI_FRAMES and (tmp_path / "k" / "trajectory_tum.txt").is_file()
-    assert sorted(p.name for p in tmp_path.iterdir()) == [batch.TMP_DIR, "k"]
-    assert list((tmp_path / batch.TMP_DIR).iterdir()) == []  # the converted bag went with the task's scratch
+        (root / "kitti" / "04_bag" / "stray.txt").unlink()
+    assert [(r.label, r.kind, r.path) for r in found] == [(k, kind, paths[k].resolve()) for k, kind in [
+        (BROKEN, "rosbag2"), ("kitti__00", "kitti"), ("kitti__04", "kitti"), ("kitti__04_bag", "rosbag2"),
+        ("kitti__07_mcap", "rosbag2"), ("tum__rgbd_dataset_freiburg1_xyz", "tum")]]
+    # a recording given as INPUTS is the one task, labelled with its name
+    assert [(r.label, r.kind) for r in batch.discover(paths["kitti__04"])] == [("04", "kitti")]
+    # the output folder inside INPUTS is not searched (its outputs are no recordings, but a manifest's may be)
+    assert batch.discover(root, exclude=[root / "kitti"])[1:] == [found[-1]]
 
 
 def test_progress_counts_done_and_failed_with_an_eta():
