@@ -109,6 +109,7 @@ def main(argv=None) -> int:
             task_s = sum(r["seconds"] for r in ok)
             print(f"workers {workers}: wall {walls[workers]:6.2f} s  ({len(ok)} replayed, {len(result.failed)} failed, "
                   f"sum of task times {task_s:.2f} s)")
+            print("  " + ", ".join(f"{r['label']} {r['seconds']:.2f} s" for r in ok))
             unexpected = [r for r in result.failed if r["label"] != "broken__truncated_bag"]
             if unexpected or len(ok) != len(labels) - 1:
                 for r in unexpected:
