@@ -67,6 +67,7 @@ PROBLEM_COUNTERS = (
     ("frames_malformed", "frame(s) malformed"), ("frames_failed", "frame(s) failed"),
     ("frames_too_large", "frame(s) too large (max_points, max_pixels)"),
     ("frames_dropped", "frame(s) dropped (processing behind or no CameraInfo)"),
+    ("frames_lost_in_transport", "input message(s) lost by DDS before reaching the node"),
     ("frames_duplicate", "frame(s) with a repeated stamp"),
     ("frames_unguessed", "frame(s) without a guess_odom pose (constant-velocity prediction)"),
     ("guess_rejected", "guess_odom message(s) rejected"),

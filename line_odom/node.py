@@ -20,6 +20,7 @@ import time
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -272,11 +273,11 @@ class OdometryNodeBase:
         subscribe = self._subscribe
         processor = self.processor
         if s.input == "pointcloud":
-            subscribe(PointCloud2, "points", self._on_message, input_qos)
+            self._subscribe_input(PointCloud2, "points", self._on_message, input_qos)
             inputs = [self.resolve_topic_name("points")]
         else:
-            subscribe(Image, "depth/image", self._on_message, input_qos)
-            subscribe(CameraInfo, "depth/camera_info", self._on_camera_info, input_qos)
+            self._subscribe_input(Image, "depth/image", self._on_message, input_qos)
+            self._subscribe_input(CameraInfo, "depth/camera_info", self._on_camera_info, input_qos)
             inputs = [self.resolve_topic_name("depth/image"), self.resolve_topic_name("depth/camera_info")]
         if s.guess_enabled:
             # best effort matches reliable and best-effort publishers; a lost pose only widens an interpolation
@@ -316,6 +317,16 @@ class OdometryNodeBase:
 
     def _subscribe(self, msg_type, topic, callback, qos):
         self._entities.append(self.create_subscription(msg_type, topic, callback, qos))
+
+    def _subscribe_input(self, msg_type, topic, callback, qos):
+        """A sensor input, with DDS's reports of messages lost on the way counted (frames_lost_in_transport)."""
+        name = self.resolve_topic_name(topic)
+        events = SubscriptionEventCallbacks(
+            message_lost=lambda info: self.processor.note_lost(int(info.total_count_change), name))
+        try:
+            self._entities.append(self.create_subscription(msg_type, topic, callback, qos, event_callbacks=events))
+        except UnsupportedEventTypeError:  # an RMW that does not report lost messages: they stay uncounted
+            self._subscribe(msg_type, topic, callback, qos)
 
     def log_ready(self, inputs: list[str]) -> None:
         s = self.settings

@@ -81,7 +81,7 @@ class OdometryProcessor:
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_too_large=0,
             frames_failed=0, frames_duplicate=0, resets=0, frames_deskewed=0, frames_deskewed_again=0,
-            point_times_ignored=0, clouds_not_fitting_sensor=0, initial_poses_rejected=0)
+            point_times_ignored=0, clouds_not_fitting_sensor=0, initial_poses_rejected=0, frames_lost_in_transport=0)
         self.fusion = Fusion(self.settings, self.config["registration.max_translation"],
                              self.config["registration.max_rotation_deg"], reject=self._reject, count=self._count,
                              info=self._info)
@@ -217,6 +217,15 @@ class OdometryProcessor:
             self.counters[kind] += 1
             self.last_error = reason
         self.log_limiter(f"{what}: {reason}")
+
+    def note_lost(self, n: int, topic: str) -> None:
+        """`n` input messages DDS reports lost before they reached the node (counted in frames_lost_in_transport)."""
+        if n > 0:
+            self._count("frames_lost_in_transport", n - 1)
+            self._reject("frames_lost_in_transport", f"{topic}: DDS lost {n} message(s) before they reached the node "
+                                                     "(best effort loses a message with any of its fragments: one "
+                                                     "larger than the transport carries? docs/NODE.md, \"Clouds "
+                                                     "larger than the transport carries\")", "lost input")
 
     def note_failure(self, reason: str) -> None:
         """A frame that failed for a reason outside the processor (counted as failed)."""

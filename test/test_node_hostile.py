@@ -201,3 +201,48 @@ def test_startup_failures_are_one_line_and_exit_2(ros_env, tmp_path, case):
     lines = [line for line in out.splitlines() if line.strip()]
     assert code == 2, out
     assert len(lines) == 1 and "Traceback" not in out and named in lines[0], out
+
+
+BIG_CLOUD_PUBLISHER = """
+import sys, time
+import numpy as np
+import rclpy
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+from line_odom import convert
+
+rclpy.init()
+node = rclpy.create_node("big_cloud_publisher")
+pub = node.create_publisher(PointCloud2, sys.argv[1], qos_profile_sensor_data)
+deadline = time.monotonic() + 60
+while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+    time.sleep(0.1)
+time.sleep(1.0)
+msg = convert.pointcloud2_from_xyz(np.zeros((2_000_000, 3), np.float32), frame_id="velodyne", stamp=5.0)
+for k in range(12):
+    msg.header.stamp = convert.sec_to_stamp(5.0 + 0.1 * k)
+    pub.publish(msg)
+    time.sleep(0.3)
+print("published", flush=True)
+"""
+
+
+def test_clouds_lost_in_transport_are_counted(run_node, ros_env):
+    """24 MB clouds over best effort between two processes with Fast DDS's defaults (no large-message profile): DDS
+    drops them on the way and reports it; the node counts what it reports (frames_lost_in_transport), logs it once
+    and goes WARN, where before such a cloud was counted nowhere."""
+    import subprocess
+    import sys
+
+    from node_harness import with_profile
+
+    node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "diagnostics.period": 0.2},
+                       large_message_profile=False)
+    wait_diagnostics(h, node, lambda v: True, "the node up")
+    proc = subprocess.run([sys.executable, "-c", BIG_CLOUD_PUBLISHER, node.topic("points")],
+                          env=with_profile(ros_env, False), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "published" in proc.stdout, proc.stdout + proc.stderr
+    values = wait_diagnostics(h, node, lambda v: int(v["frames_lost_in_transport"]) >= 1, "a lost cloud counted")
+    assert int(values["frames_lost_in_transport"]) + int(values["frames_received"]) <= 12
+    lines = [line for line in node.output().splitlines() if "before they reached the node" in line]
+    assert len(lines) == 1 and node.topic("points") in lines[0], lines
