@@ -1,9 +1,10 @@
 """Odometry over an archive of recordings: ``line_odom batch INPUTS --out DIR``.
 
 Each recording (any format :func:`line_odom.readers.guess_format` recognizes) is one task that runs
-:func:`line_odom.replay.replay` in-process (deterministic) and writes replay's outputs to ``DIR/<label>/``. Tasks run on Dask's distributed engine: ``workers=N`` starts a
-``LocalCluster`` of N single-threaded worker processes for the run, ``cluster=ADDRESS`` submits the same tasks
-to an existing scheduler (whose workers must see INPUTS and DIR at the same paths and run the same line_odom).
+:func:`line_odom.replay.replay` in-process (deterministic) and writes replay's outputs to ``DIR/<label>/``. Tasks
+run on Dask's distributed engine: ``workers=N`` starts a ``LocalCluster`` of N single-threaded worker processes for
+the run, ``cluster=ADDRESS`` submits the same tasks to an existing scheduler (whose workers must see INPUTS and DIR
+at the same paths and run the same line_odom).
 
 Safety: a task writes into ``DIR/.batch_tmp/`` and renames its finished output directory to ``DIR/<label>`` in one
 step, so an interrupted run leaves complete outputs or none. ``batch.json`` in an output directory records the
@@ -37,6 +38,7 @@ from line_odom.progress import ProgressBar
 
 RECORD = "batch.json"
 TMP_DIR = ".batch_tmp"
+LOCK = ".batch.lock"
 SUMMARY_CSV, SUMMARY_MD, SUMMARY_PLOT = "summary.csv", "summary.md", "summary.png"
 REPLAY_OUTPUTS = ("trajectory_tum.txt", "trajectory_kitti.txt", "metrics.json")
 MANIFEST_FIELDS = ("path", "label", "params", "set")
@@ -657,7 +659,7 @@ def _skipped_row(rec: Recording, record: dict) -> dict:
 
 def run_batch(inputs: str | Path, out_dir: str | Path, *, workers: int | None = None, cluster: str | None = None,
               params: str | None = None, overrides: Mapping[str, Any] | None = None, frames: int | None = None,
-              force: bool = False, progress: bool = True, recordings: list[Recording] | None = None) -> BatchResult:
+              force: bool = False, progress: bool = True) -> BatchResult:
     """Replay every recording of `inputs` (a folder or a manifest) into `out_dir/<label>/` on `workers` local
     processes (default: the cores) or on the Dask scheduler at `cluster`; write the summary. See the module
     docstring."""
@@ -669,14 +671,39 @@ def run_batch(inputs: str | Path, out_dir: str | Path, *, workers: int | None = 
         raise FileNotFoundError(f"{params}: no such parameter file")
     _distributed()
     out_root = Path(out_dir).resolve()
-    if recordings is None:
-        recordings = recordings_from(inputs, params=params, overrides=overrides, exclude=[out_root])
+    recordings = recordings_from(inputs, params=params, overrides=overrides, exclude=[out_root])
     started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
     t0 = time.monotonic()
     out_root.mkdir(parents=True, exist_ok=True)
-    # scratch of runs that were killed: only one batch writes to an output folder at a time
-    shutil.rmtree(out_root / TMP_DIR, ignore_errors=True)
+    with _exclusive(out_root):
+        # what is in the scratch now was left by a run that was killed
+        shutil.rmtree(out_root / TMP_DIR, ignore_errors=True)
+        return _run(recordings, inputs, out_root, workers, cluster, frames, force, progress, started, t0)
 
+
+def _exclusive(out_root: Path):
+    """A lock on DIR for the run: two batches writing into one folder would remove each other's scratch."""
+    import contextlib
+    import fcntl
+
+    @contextlib.contextmanager
+    def held():
+        with open(out_root / LOCK, "a") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise RuntimeError(f"{out_root}: another line_odom batch is writing into this folder (it holds "
+                                   f"{out_root / LOCK}); wait for it or choose another --out") from None
+            try:
+                yield
+            finally:
+                fcntl.flock(f, fcntl.LOCK_UN)
+
+    return held()
+
+
+def _run(recordings: list[Recording], inputs, out_root: Path, workers: int | None, cluster: str | None,
+         frames: int | None, force: bool, progress: bool, started: str, t0: float) -> BatchResult:
     rows: dict[str, dict] = {}
     todo = []
     for rec in recordings:

@@ -3,6 +3,7 @@ truncated bag): local workers and a local Dask cluster give the same trajectorie
 and the failed row's error; a second run skips what is complete; manifests; a worker that dies is retried once;
 Ctrl-C leaves no half-written outputs."""
 import csv
+import fcntl
 import io
 import json
 import os
@@ -189,6 +190,13 @@ def test_manifests_yaml_and_csv(tmp_path):
         batch.recordings_from(tmp_path / "runs")
     assert main(["batch", str(tmp_path / "runs"), "--out", str(tmp_path / "o"), "--workers", "1",
                  "--cluster", "tcp://127.0.0.1:1"]) == 2
+    # one batch at a time writes into a folder
+    (tmp_path / "one.yaml").write_text("- runs/c\n")
+    (tmp_path / "o").mkdir()
+    with open(tmp_path / "o" / batch.LOCK, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        with pytest.raises(RuntimeError, match=f"^{tmp_path / 'o'}: another line_odom batch is writing into this"):
+            batch.run_batch(tmp_path / "one.yaml", tmp_path / "o", workers=1)
 
 
 def _dies_unless_retried(rec, out_root, frames):
@@ -250,7 +258,8 @@ def test_ctrl_c_leaves_complete_outputs_or_none(archive, tmp_path):
         else:
             assert rows[label]["status"] == "interrupted" and rows[label]["error"] == "not run (interrupted)"
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [batch.SUMMARY_CSV, batch.SUMMARY_MD, batch.SUMMARY_PLOT] + [k for k in labels if (out / k).is_dir()])
+        [batch.LOCK, batch.SUMMARY_CSV, batch.SUMMARY_MD, batch.SUMMARY_PLOT]
+        + [k for k in labels if (out / k).is_dir()])
 
 
 def test_discovery_finds_each_recording_once(archive, tmp_path):
