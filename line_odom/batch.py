@@ -392,10 +392,14 @@ def local_cluster(workers: int):
 
 
 def connect(address: str):
+    """A client of the scheduler at `address` (tcp://host:port), or of the one a scheduler file names (the JSON that
+    `dask scheduler --scheduler-file` writes, as on a batch-queue cluster)."""
     distributed = _distributed()
     try:
+        if address.endswith(".json") and Path(address).is_file():
+            return distributed.Client(scheduler_file=address, timeout=30)
         return distributed.Client(address, timeout=30)
-    except (OSError, TimeoutError, ValueError) as exc:
+    except (OSError, TimeoutError, ValueError, KeyError) as exc:
         raise RuntimeError(f"--cluster {address}: cannot connect to a Dask scheduler there "
                            f"({one_line_error(exc)})") from None
 

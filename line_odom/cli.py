@@ -103,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                        help="local worker processes (default: the cores)")
     where.add_argument("--cluster", default=None, metavar="ADDRESS",
-                       help="run on this existing Dask scheduler (e.g. tcp://host:8786)")
+                       help="run on this existing Dask scheduler (tcp://host:8786, or its scheduler file .json)")
     p.add_argument("--params", metavar="YAML", default=None, help="parameter file for recordings without their own")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
                    help="override one parameter for every recording (a manifest entry's own set wins); repeatable")
