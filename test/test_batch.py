@@ -132,7 +132,9 @@ def test_local_workers_and_a_cluster_give_the_same_trajectories_and_the_summary(
     assert _rows(on_cluster)["kitti__07_mcap"]["status"] == "ok"
     assert (on_cluster / "kitti__07_mcap" / "trajectory_tum.txt").read_bytes() != before
     stamp = (on_cluster / "kitti__07_mcap" / "trajectory_tum.txt").stat().st_mtime_ns
-    assert main(["batch", str(csv_manifest), "--out", str(on_cluster), "--cluster", cluster.scheduler_address,
+    scheduler_file = tmp_path / "scheduler.json"  # the cluster named as `dask scheduler --scheduler-file` names it
+    scheduler_file.write_text(json.dumps(cluster.scheduler.identity()))
+    assert main(["batch", str(csv_manifest), "--out", str(on_cluster), "--cluster", str(scheduler_file),
                  "--quiet", "--force"]) == 0
     assert _rows(on_cluster)["kitti__07_mcap"]["status"] == "ok"
     assert (on_cluster / "kitti__07_mcap" / "trajectory_tum.txt").stat().st_mtime_ns != stamp
