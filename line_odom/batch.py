@@ -41,7 +41,7 @@ TMP_DIR = ".batch_tmp"
 LOCK = ".batch.lock"
 SUMMARY_CSV, SUMMARY_MD, SUMMARY_PLOT = "summary.csv", "summary.md", "summary.png"
 REPLAY_OUTPUTS = ("trajectory_tum.txt", "trajectory_kitti.txt", "metrics.json")
-MANIFEST_FIELDS = ("path", "label", "params", "set")
+MANIFEST_FIELDS = ("path", "label", "params", "set", "format", "ground_truth")
 # recording files whose format cannot be guessed because they are unreadable: still tasks, so they fail visibly
 RECORDING_SUFFIXES = {".pcap": "velodyne", ".pcapng": "velodyne", ".osf": "ouster", ".bag": "ros1"}
 # the metric keys in the order evaluation prints them; others follow alphabetically
@@ -72,14 +72,20 @@ class Recording:
     kind: str | None  # "rosbag2", "kitti", "tum", a reader's format name, or None (not a recording: fails)
     params: str | None = None
     overrides: dict = dataclasses.field(default_factory=dict)
+    ground_truth: str | None = None  # a TUM / KITTI trajectory file instead of the recording's own
 
     def spec(self, frames: int | None) -> dict:
         """What the outputs depend on; outputs recorded with another spec are not reused."""
-        params_sha = None
-        if self.params is not None and Path(self.params).is_file():
-            params_sha = hashlib.sha256(Path(self.params).read_bytes()).hexdigest()
-        return {"input": str(self.path), "kind": self.kind, "params": self.params, "params_sha256": params_sha,
+        return {"input": str(self.path), "kind": self.kind, "params": self.params,
+                "params_sha256": _sha256(self.params), "ground_truth": self.ground_truth,
+                "ground_truth_sha256": _sha256(self.ground_truth),
                 "overrides": {k: self.overrides[k] for k in sorted(self.overrides)}, "frames": frames}
+
+
+def _sha256(path: str | None) -> str | None:
+    if path is None or not Path(path).is_file():
+        return None
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def detect(path: str | Path) -> str | None:
@@ -166,8 +172,12 @@ def _overrides_from(value: Any, where: str) -> dict:
 
 def read_manifest(path: str | Path) -> list[Recording]:
     """Recordings of a YAML manifest (a list of entries, or {recordings: [...]}) or a CSV manifest (header row).
-    Entry fields: path (required; relative to the manifest's folder), label (default: the path's name), params
-    (a parameter file), set (overrides: a mapping or 'NAME=VALUE' items, ';'-separated in CSV)."""
+    Entry fields: path (required; relative to the manifest's folder, as the files below), label (default: the
+    path's name), params (a parameter file), set (overrides: a mapping or 'NAME=VALUE' items, ';'-separated in CSV),
+    format (one of line_odom.readers.FORMATS instead of the guess), ground_truth (a TUM / KITTI trajectory file
+    instead of the recording's own)."""
+    from line_odom import readers
+
     path = Path(path)
     base = path.resolve().parent
     if path.suffix.lower() == ".csv":
@@ -188,15 +198,22 @@ def read_manifest(path: str | Path) -> list[Recording]:
             raise ValueError(f"{where}: 'path' is missing (the recording to replay)")
         rec_path = Path(os.path.expanduser(str(entry["path"])))
         rec_path = (rec_path if rec_path.is_absolute() else base / rec_path).resolve()
-        params = entry.get("params") or None
-        if params is not None:
-            params_path = Path(os.path.expanduser(str(params)))
-            params = str((params_path if params_path.is_absolute() else base / params_path).resolve())
+        params, ground_truth = (_resolve(entry.get(key), base) for key in ("params", "ground_truth"))
         label = str(entry.get("label") or rec_path.name)
-        recordings.append(Recording(rec_path, label, detect(rec_path), params,
-                                    _overrides_from(entry.get("set"), where)))
+        kind = entry.get("format") or None
+        if kind is not None and kind not in readers.FORMATS:
+            raise ValueError(f"{where}: format {kind!r}: expected one of {', '.join(readers.FORMATS)}")
+        recordings.append(Recording(rec_path, label, kind or detect(rec_path), params,
+                                    _overrides_from(entry.get("set"), where), ground_truth))
     _check_labels(recordings, str(path))
     return recordings
+
+
+def _resolve(value, base: Path) -> str | None:
+    if not value:
+        return None
+    path = Path(os.path.expanduser(str(value)))
+    return str((path if path.is_absolute() else base / path).resolve())
 
 
 def _read_yaml_manifest(path: Path) -> list[tuple[str, dict]]:
@@ -318,7 +335,7 @@ def _replay(rec: Recording, out: Path, frames: int | None) -> dict:
 
     kind = rec.kind or readers.guess_format(rec.path)  # none: the readers' error, naming the formats expected
     return replay.replay(rec.path, out, format=kind, params=rec.params, overrides=rec.overrides, frames=frames,
-                         progress=False, title=rec.label).metrics
+                         ground_truth=rec.ground_truth, progress=False, title=rec.label).metrics
 
 
 def run_recording(rec: Recording, out_root: str | Path, frames: int | None = None) -> dict:

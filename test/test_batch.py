@@ -113,15 +113,22 @@ def test_local_workers_and_a_cluster_give_the_same_trajectories_and_the_summary(
     assert again[BROKEN]["status"] == "failed" and again[BROKEN]["error"] == failed["error"]
     assert {k: (out / k / "trajectory_tum.txt").stat().st_mtime_ns for k in OK_LABELS} == stamps
 
-    # the same recordings from a YAML manifest, on the test's cluster of one worker
+    # the same recordings from a YAML manifest, on the test's cluster of one worker; and KITTI 04 once more, judged
+    # against a ground-truth file (the one the first run wrote for it), the format named
     manifest = tmp_path / "archive.yaml"
     manifest.write_text("recordings:\n" + "".join(
-        f"  - {{path: {paths[k]}, label: {k}, set: {{downsample: 6}}}}\n" for k in OK_LABELS))
+        f"  - {{path: {paths[k]}, label: {k}, set: {{downsample: 6}}}}\n" for k in OK_LABELS)
+        + f"  - {{path: {paths['kitti__04']}, label: gt_file, format: kitti, set: {{downsample: 6}}, "
+          f"ground_truth: {out / 'kitti__04' / 'ground_truth_tum.txt'}}}\n")
     on_cluster = tmp_path / "cluster"
     assert main(["batch", str(manifest), "--out", str(on_cluster), "--cluster", cluster.scheduler_address,
                  "--quiet"]) == 0
-    assert [r["status"] for k, r in _rows(on_cluster).items() if k in OK_LABELS] == ["ok"] * len(OK_LABELS)
+    assert [r["status"] for r in list(_rows(on_cluster).values())[:-3]] == ["ok"] * (len(OK_LABELS) + 1)
     assert _trajectories(on_cluster, OK_LABELS) == _trajectories(out, OK_LABELS)
+    by_file = json.loads((on_cluster / "gt_file" / "metrics.json").read_text())
+    own = json.loads((out / "kitti__04" / "metrics.json").read_text())
+    assert by_file["frames_with_ground_truth"] == own["frames_with_ground_truth"] == KITTI_FRAMES
+    assert by_file["rpe_trans_mean_m"] == pytest.approx(own["rpe_trans_mean_m"], rel=1e-6)
 
     # other parameters are another task: replayed although outputs exist; --force replays complete ones
     csv_manifest = tmp_path / "one.csv"
@@ -133,7 +140,7 @@ def test_local_workers_and_a_cluster_give_the_same_trajectories_and_the_summary(
     assert (on_cluster / "kitti__07_mcap" / "trajectory_tum.txt").read_bytes() != before
     stamp = (on_cluster / "kitti__07_mcap" / "trajectory_tum.txt").stat().st_mtime_ns
     scheduler_file = tmp_path / "scheduler.json"  # the cluster named as `dask scheduler --scheduler-file` names it
-    scheduler_file.write_text(json.dumps(cluster.scheduler.identity()))
+    scheduler_file.write_text(json.dumps({"type": "Scheduler", "address": cluster.scheduler_address}))
     assert main(["batch", str(csv_manifest), "--out", str(on_cluster), "--cluster", str(scheduler_file),
                  "--quiet", "--force"]) == 0
     assert _rows(on_cluster)["kitti__07_mcap"]["status"] == "ok"
@@ -162,15 +169,19 @@ def test_manifests_yaml_and_csv(tmp_path):
     assert row["status"] == "failed" and row["error"].startswith(f"{tmp_path / 'runs' / 'c'}: unknown recording format")
 
     csv_manifest = tmp_path / "m.csv"
-    csv_manifest.write_text("# archive\npath,label,set,params\nruns/a,,downsample=8; ransac.seed=2,\n"
-                            f"{tmp_path / 'runs' / 'b'},bee,,params.yaml\n")
+    csv_manifest.write_text("# archive\npath,label,set,params,format,ground_truth\n"
+                            "runs/a,,downsample=8; ransac.seed=2,,,\n"
+                            f"{tmp_path / 'runs' / 'b'},bee,,params.yaml,velodyne,gt/b_poses.txt\n")
     recs = batch.read_manifest(csv_manifest)
-    assert [(r.label, r.overrides, r.params) for r in recs] == [
-        ("a", {"downsample": 8, "ransac.seed": 2}, None), ("bee", {}, str(tmp_path / "params.yaml"))]
+    assert [(r.label, r.overrides, r.params, r.kind, r.ground_truth) for r in recs] == [
+        ("a", {"downsample": 8, "ransac.seed": 2}, None, None, None),
+        ("bee", {}, str(tmp_path / "params.yaml"), "velodyne", str(tmp_path / "gt" / "b_poses.txt"))]
 
     for text, message in [
         ("- label: x\n", "entry 1: 'path' is missing"),
-        ("- {path: runs/a, sets: {a: 1}}\n", "entry 1: unknown field(s) sets (expected path, label, params, set)"),
+        ("- {path: runs/a, sets: {a: 1}}\n",
+         "entry 1: unknown field(s) sets (expected path, label, params, set, format, ground_truth)"),
+        ("- {path: runs/a, format: pcap}\n", "entry 1: format 'pcap': expected one of rosbag2, "),
         ("- runs/a\n- {path: runs/b, label: a}\n", "label 'a' is given to both"),
         ("- {path: runs/a, set: 3}\n", "entry 1: 'set' must be a mapping NAME: VALUE or a list"),
         ("- {path: runs/a, set: [downsample]}\n", "entry 1: --set: expected NAME=VALUE, got 'downsample'"),
