@@ -22,6 +22,30 @@ UNKNOWN_TWIST_VARIANCE = 1e6  # first frame after a (re)start: no motion observe
 
 
 @dataclasses.dataclass
+class EngineFrame:
+    """One converted frame, ready for the engine: which register_* call, its arguments before the stamp, its keywords
+    (ring, per-point time, sweep rate: given only when known, so engines without them keep working)."""
+
+    call: str  # "register_points", "register_organized" or "register_depth"
+    args: tuple
+    keywords: dict = dataclasses.field(default_factory=dict)
+
+    def register(self, engine, stamp: float, guess: dict):
+        """The engine's FrameResult; `guess`: the fusion's guess keywords (guess / rotation_guess)."""
+        return getattr(engine, self.call)(*self.args, stamp, **self.keywords, **guess)
+
+    def kept_points(self, engine, config) -> np.ndarray | None:
+        """The points the engine keeps of this frame (line_odom.scan_view), in the sensor frame."""
+        from line_odom import scan_view
+
+        if self.call == "register_points":
+            return scan_view.kept_unorganized(engine, self.args[0], self.keywords.get("ring"))
+        if self.call == "register_organized":
+            return scan_view.kept_organized(self.args[0], config)
+        return scan_view.kept_depth(*self.args, config)
+
+
+@dataclasses.dataclass
 class BaseState:
     """One frame's odometry of the base: pose in odom, its covariance (PoseWithCovariance convention, parent-frame
     axes), twist in the base frame and its covariance."""

@@ -22,7 +22,7 @@ from line_odom.diagnostics import RateLimitedLog, diagnostic_array, frame_values
 from line_odom.fusion import Fusion
 from line_odom.node_parameters import (INPUTS, NODE_PARAMETER_NAMES, NODE_PARAMETERS, NodeSettings,  # noqa: F401
                                        settings_from_parameters, validate_node_value)
-from line_odom.pipeline import BaseTrajectory
+from line_odom.pipeline import BaseTrajectory, EngineFrame
 from line_odom_core.config import Config, load_config
 
 SENSOR_LOG_REPEAT_S = 30.0
@@ -312,9 +312,8 @@ class OdometryProcessor:
             self._reject("frames_malformed", f"{err} (is depth/camera_info the depth image's own?)")
             return None
         self.fusion.await_gyro(stamp_ns)
-        kept = (lambda: scan_view.kept_depth(depth, K, self.config)) if self.scan_wanted else None
-        return self._register(lambda s, **guess: self.engine.register_depth(depth, K, s, **guess), stamp_ns,
-                              str(image.header.frame_id), t0, receive_time, kept)
+        return self._register(EngineFrame("register_depth", (depth, K)), stamp_ns, str(image.header.frame_id), t0,
+                              receive_time)
 
     # ------------------------------------------------------------------ point clouds
     def process_pointcloud(self, msg, receive_time: float | None = None) -> FrameOutput | None:
@@ -336,24 +335,16 @@ class OdometryProcessor:
         except convert.ConversionError as err:  # registered as measured: the sweep is not corrected
             self._reject("point_times_ignored", str(err), "registering without deskewing")
             times = None
-        # (the time keyword only when there are times: engines without it keep working)
         extra = {} if times is None else {"time": times}
         self.fusion.await_gyro(stamp_ns + (0 if times is None else max(0, round(float(times.max()) * 1e9))))
         rate = None if times is None else self.fusion.sweep_rate(stamp_ns, times)
         if rate is not None:
             extra["sweep_rate"] = rate
-        kept = None
         if cloud.organized:
-            run = lambda stamp, **guess: self.engine.register_organized(  # noqa: E731
-                cloud.xyz, stamp, **extra, **guess)
-            if self.scan_wanted:
-                kept = lambda: scan_view.kept_organized(cloud.xyz, self.config)  # noqa: E731
+            frame = EngineFrame("register_organized", (cloud.xyz,), extra)
         else:
-            run = lambda stamp, **guess: self.engine.register_points(  # noqa: E731
-                cloud.xyz, stamp, ring=cloud.ring, **extra, **guess)
-            if self.scan_wanted:
-                kept = lambda: scan_view.kept_unorganized(self.engine, cloud.xyz, cloud.ring)  # noqa: E731
-        return self._register(run, stamp_ns, cloud.frame_id, t0, receive_time, kept)
+            frame = EngineFrame("register_points", (cloud.xyz,), {"ring": cloud.ring, **extra})
+        return self._register(frame, stamp_ns, cloud.frame_id, t0, receive_time)
 
     def _check_sensor(self, cloud) -> None:
         """Until a cloud fits the engine's sensor model: a cloud that does not is counted (clouds_not_fitting_sensor)
@@ -383,7 +374,7 @@ class OdometryProcessor:
             self._warn(f"the clouds do not fit the sensor model, registering them anyway: {self.sensor_fit}")
 
     # ------------------------------------------------------------------ registration
-    def _register(self, run, stamp_ns: int, frame_id: str, t0: float, receive_time: float | None, kept=None):
+    def _register(self, frame: EngineFrame, stamp_ns: int, frame_id: str, t0: float, receive_time: float | None):
         stamp = stamp_ns * 1e-9
         with self._frame_lock:
             if not self.fusion.mount(frame_id):
@@ -404,7 +395,7 @@ class OdometryProcessor:
             guess, guess_pose = self.fusion.guess_delta(stamp_ns)
             rotation = self.fusion.imu_rotation(last, stamp_ns)
             try:
-                result = run(stamp, **self.fusion.engine_guess(guess, rotation))
+                result = frame.register(self.engine, stamp, self.fusion.engine_guess(guess, rotation))
             except ValueError as err:
                 self._reject("frames_failed", f"registration rejected the frame: {err}")
                 return None
@@ -423,8 +414,8 @@ class OdometryProcessor:
             self.fusion.registered(last is None, guess, guess_pose, rotation, delta, out.stats, seconds)
         end = time.perf_counter()
         out.latency_ms = 1e3 * ((time.monotonic() - receive_time) if receive_time is not None else (end - t0))
-        if kept is not None:  # after the latency is taken: the view is not the odometry's cost
-            points = kept()
+        if self.scan_wanted:  # after the latency is taken: the view is not the odometry's cost
+            points = frame.kept_points(self.engine, self.config)
             if points is not None:
                 out.scan = scan_view.scan_message(points, frame_id, stamp_ns)
         with self._count_lock:
