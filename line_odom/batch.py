@@ -292,12 +292,15 @@ def provenance() -> dict:
 
     source = Path(__file__).resolve().parents[1]
     commit = "unknown (not a git checkout)"
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(source), *args], capture_output=True, text=True, timeout=10,
+                              check=True).stdout.strip()
+
     try:
-        sha = subprocess.run(["git", "-C", str(source), "rev-parse", "HEAD"], capture_output=True, text=True,
-                             timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(source), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-        commit = sha + (" (with uncommitted changes)" if dirty else "")
+        # an installed copy inside some other repository (a venv in a project) is not that repository's commit
+        if Path(git("rev-parse", "--show-toplevel")).resolve() == source:
+            dirty = git("status", "--porcelain", "--untracked-files=no")
+            commit = git("rev-parse", "HEAD") + (" (with uncommitted changes)" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         pass
     return {"host": socket.gethostname(), "platform": platform.platform(), "cpus": os.cpu_count(),
