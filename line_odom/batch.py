@@ -405,10 +405,11 @@ def local_cluster(workers: int):
 
     distributed = _distributed()
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        # no dashboard; the scheduler's HTTP routes on a free loopback port instead of the usual 8787
+        # no dashboard; the scheduler's HTTP routes on a free loopback port instead of the usual 8787. Its log stays
+        # quiet: a worker's death and a task's failure are the summary's rows, each with its one line
         return distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                                         dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                                        silence_logs=logging.ERROR, preload=[__name__])
+                                        silence_logs=logging.CRITICAL, preload=[__name__])
 
 
 def connect(address: str):
@@ -566,13 +567,14 @@ def summary_csv(rows: list[dict]) -> str:
     keys = metric_keys(rows)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["label", "input", "kind", "status", "seconds", "error", "host", "commit"] + keys)
+    w.writerow(["label", "input", "kind", "status", "seconds", "attempts", "error", "host", "commit"] + keys)
     for r in rows:
-        w.writerow([r["label"], r["input"], r["kind"] or "", r["status"], _fmt(r.get("seconds")), r.get("error", ""),
-                    r.get("host", ""), r.get("commit", "")] + [_fmt(r["metrics"].get(k)) for k in keys])
+        w.writerow([r["label"], r["input"], r["kind"] or "", r["status"], _fmt(r.get("seconds")),
+                    _fmt(r.get("attempts")), r.get("error", ""), r.get("host", ""), r.get("commit", "")]
+                   + [_fmt(r["metrics"].get(k)) for k in keys])
     agg = aggregates(rows)
     for stat in ("mean", "median", "worst"):
-        w.writerow([stat, "", "", "aggregate", _fmt(agg.get("seconds", {}).get(stat)), "", "", ""]
+        w.writerow([stat, "", "", "aggregate", _fmt(agg.get("seconds", {}).get(stat)), "", "", "", ""]
                    + [_fmt(agg[k][stat]) if k in agg else "" for k in keys])
     return buf.getvalue()
 
@@ -758,7 +760,7 @@ def _run(recordings: list[Recording], inputs, out_root: Path, workers: int | Non
             row = rows.get(rec.label)
             if row is None:  # interrupted: a task may have finished after its result could no longer arrive
                 record = read_complete(out_root / rec.label, rec.spec(frames))
-                row = ({**_skipped_row(rec, record), "status": "ok"} if record is not None else
+                row = ({**_skipped_row(rec, record), "status": "ok", "attempts": 1} if record is not None else
                        {"label": rec.label, "input": str(rec.path), "kind": rec.kind, "status": "interrupted",
                         "error": "not run (interrupted)", "metrics": {}})
             ordered.append(row)

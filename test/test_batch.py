@@ -77,7 +77,7 @@ def test_local_workers_and_a_cluster_give_the_same_trajectories_and_the_summary(
     for label in OK_LABELS:
         r = rows[label]
         metrics = json.loads((out / label / "metrics.json").read_text())
-        assert r["status"] == "ok" and r["error"] == "" and float(r["seconds"]) > 0
+        assert r["status"] == "ok" and r["error"] == "" and float(r["seconds"]) > 0 and r["attempts"] == "1"
         assert r["host"] == socket.gethostname() and _is_commit(r["commit"].split()[0])
         assert int(r["frames"]) == (TUM_FRAMES if label.startswith("tum") else KITTI_FRAMES)
         assert float(r["rpe_trans_mean_m"]) == pytest.approx(metrics["rpe_trans_mean_m"], rel=1e-5)
@@ -108,7 +108,7 @@ def test_local_workers_and_a_cluster_give_the_same_trajectories_and_the_summary(
     assert main(["batch", str(root), "--out", str(out), "--cluster", cluster.scheduler_address, "--set", "downsample=6",
                  "--quiet"]) == 1
     again = _rows(out)
-    assert [again[k]["status"] for k in OK_LABELS] == ["skipped"] * len(OK_LABELS)
+    assert [(again[k]["status"], again[k]["attempts"]) for k in OK_LABELS] == [("skipped", "0")] * len(OK_LABELS)
     assert [again[k]["seconds"] for k in OK_LABELS] == [rows[k]["seconds"] for k in OK_LABELS]
     assert again[BROKEN]["status"] == "failed" and again[BROKEN]["error"] == failed["error"]
     assert {k: (out / k / "trajectory_tum.txt").stat().st_mtime_ns for k in OK_LABELS} == stamps
