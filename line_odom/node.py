@@ -10,10 +10,7 @@ engine releases the GIL) -> publish.
 """
 from __future__ import annotations
 
-import os
-import re
 import sys
-import tempfile
 import threading
 import time
 
@@ -21,14 +18,8 @@ import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
-from rclpy.exceptions import ParameterNotDeclaredException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
-                                SetParametersResult)
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
@@ -36,16 +27,12 @@ from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 from std_srvs.srv import Trigger
 
-from line_odom.node_parameters import NODE_PARAMETERS, NodeSettings
+from line_odom.node_startup import EXIT_BAD_PARAMETER, NODE_NAME, run  # noqa: F401
 from line_odom.processor import OdometryProcessor
-from line_odom_core.config import CHOICES, config_schema, load_config
-
-NODE_NAME = "line_odom"
-INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+from line_odom.ros_parameters import ParameterMixin, ParameterSetupError  # noqa: F401
 # Requests a service holds before answering: a burst of callers (a launch file resetting several nodes, a test rig)
 # beyond the default depth of 10 would lose requests. Every caller gets its answer up to this many at once.
 SERVICE_QUEUE_DEPTH = 100
-EXIT_BAD_PARAMETER = 2
 
 
 class LatestSlot:
@@ -89,150 +76,13 @@ class LatestSlot:
         return self._closed
 
 
-def _descriptor(name: str, ptype: int, description: str, lo=None, hi=None, constraints: str = "",
-                integer: bool = False) -> ParameterDescriptor:
-    d = ParameterDescriptor(name=name, type=ptype, description=description, read_only=True,
-                            additional_constraints=constraints)
-    if lo is not None or hi is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo if lo is not None else INT64_MIN),
-                                            to_value=int(hi if hi is not None else INT64_MAX), step=0)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo if lo is not None else -1e308),
-                                                         to_value=float(hi if hi is not None else 1e308),
-                                                         step=0.0)]
-    return d
-
-
-_PTYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-           float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
-           list: ParameterType.PARAMETER_DOUBLE_ARRAY}
-
-
-class ParameterSetupError(ValueError):
-    """A parameter has a bad value or type; the message names it and says what is expected."""
-
-
-class UndeclaredParameterError(ParameterNotDeclaredException):
-    """rclpy's own message for this lists no name; this one names them."""
-
-    def __init__(self, names: list[str]):
-        Exception.__init__(self, f"no parameter {', '.join(repr(n) for n in names)} on this node (line_odom declares "
-                                 f"its parameters at start-up; list them with ros2 param list)")
-
-
-def _one_line(text: str) -> str:
-    return re.sub(r"\s*\n\s*", "; ", str(text).strip())
-
-
-class OdometryNodeBase:
+class OdometryNodeBase(ParameterMixin):
     """What the plain and the managed node share, on top of an rclpy Node: parameters (declared once, read-only
     afterwards), and the interfaces of a running odometry (started by ``start_odometry``, torn down by
     ``stop_odometry``)."""
 
     processor: OdometryProcessor | None = None
     _worker: threading.Thread | None = None
-
-    # ------------------------------------------------------------------ parameters
-    def _coerce_overrides(self, names_types: dict[str, type]) -> None:
-        """ROS parameter files often write 2 for 2.0 (and [0, 0, 0] for doubles); accept those for double
-        parameters instead of failing on the type."""
-        overrides = getattr(self, "_parameter_overrides", None)
-        if not isinstance(overrides, dict):
-            return
-        for name, want in names_types.items():
-            p = overrides.get(name)
-            if p is None:
-                continue
-            if want is float and p.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
-            elif want is list and p.type_ == Parameter.Type.INTEGER_ARRAY:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in p.value])
-
-    def _declare(self, name, default, descriptor):
-        if self.has_parameter(name):  # a managed node configured again reads the values it declared
-            return self.get_parameter(name).value
-        try:
-            return self.declare_parameter(name, default, descriptor).value
-        except Exception as err:  # rclpy raises several exception types for bad overrides
-            raise ParameterSetupError(f"parameter {name!r}: {_one_line(err)}") from None
-
-    def declare_and_load(self) -> None:
-        """Declares every parameter (the preset gives the defaults), reads them into ``self.settings`` and
-        ``self.config``; ParameterSetupError naming the parameter or file when one is bad."""
-        preset = self._declare("preset", "kitti_hdl64", _descriptor(
-            "preset", ParameterType.PARAMETER_STRING,
-            "engine + node defaults: a preset name (kitti_hdl64, tum_kinect, vlp16, ouster_os128) or a ROS 2 "
-            "parameter YAML path; individual parameters override it"))
-        try:
-            base = load_config(preset)
-        except Exception as err:  # noqa: BLE001 - YAML syntax, encoding, I/O and schema errors alike: one line
-            raise ParameterSetupError(f"parameter 'preset' ({preset!r}): {_one_line(err)}") from None
-        try:
-            preset_node = NodeSettings.from_mapping(base.extra, strict=False).as_dict()
-        except ValueError as err:
-            raise ParameterSetupError(f"preset {base.source}: {err}") from None
-        unknown = sorted(k for k in base.extra if k not in preset_node and k not in ("use_sim_time", "preset"))
-        if unknown:
-            self.get_logger().warning(f"preset {base.source}: ignoring unknown keys {unknown}")
-
-        schema = config_schema()
-        self._coerce_overrides({**{e.name: e.type for e in schema}, **{p.name: p.type for p in NODE_PARAMETERS}})
-
-        node_values = {}
-        for p in NODE_PARAMETERS:
-            ptype = _PTYPES[p.type]
-            constraints = ("one of " + ", ".join(p.choices)) if p.choices else ""
-            desc = _descriptor(p.name, ptype, p.description, p.min, p.max, constraints, integer=p.type is int)
-            default = preset_node[p.name]
-            node_values[p.name] = self._declare(p.name, [float(v) for v in default] if p.type is list else default,
-                                                desc)
-        try:
-            self.settings = NodeSettings.from_mapping(node_values)
-        except ValueError as err:
-            raise ParameterSetupError(str(err)) from None
-
-        engine_values = {}
-        for e in schema:
-            ptype = _PTYPES[e.type]
-            constraints = ("one of " + ", ".join(CHOICES[e.name])) if e.name in CHOICES else ""
-            desc = _descriptor(e.name, ptype, e.description, e.min, e.max, constraints, integer=e.type is int)
-            engine_values[e.name] = self._declare(e.name, base[e.name], desc)
-        try:
-            self.config = load_config(preset, engine_values)
-        except ValueError as err:
-            raise ParameterSetupError(str(err)) from None
-
-        declared = {"preset", "use_sim_time"} | set(node_values) | set(engine_values)
-        overrides = getattr(self, "_parameter_overrides", {}) or {}
-        stray = sorted(n for n in overrides if n not in declared and not n.startswith("qos_overrides."))
-        if stray:
-            self.get_logger().warning(f"ignoring unknown parameters {stray} (typo?)")
-        if not getattr(self, "_parameter_guards", False):
-            self.add_pre_set_parameters_callback(self._refuse_undeclared)
-            self.add_on_set_parameters_callback(self._refuse_change)
-            self._parameter_guards = True
-
-    def _refuse_undeclared(self, parameters: list[Parameter]) -> list[Parameter]:
-        unknown = [p.name for p in parameters if not self.has_parameter(p.name)]
-        if unknown:
-            raise UndeclaredParameterError(unknown)
-        return parameters
-
-    def _refuse_change(self, parameters: list[Parameter]) -> SetParametersResult:
-        """No parameter is applied live (the engine, the subscriptions and the clock are built from them once):
-        a change at runtime, use_sim_time included, is refused naming it rather than accepted and ignored."""
-        names = ", ".join(p.name for p in parameters)
-        return SetParametersResult(successful=False, reason=(
-            f"{names}: read-only while the node runs (line_odom reads its parameters once, at start-up; restart it "
-            f"with the new value, e.g. -p {parameters[0].name}:=...)" if parameters else "no parameter given"))
-
-    def log_parameters(self) -> None:
-        lines = [f"  preset = {self.config.source}"]
-        lines += [f"  {k} = {v}" for k, v in self.settings.as_dict().items()]
-        lines += [f"  {k} = {v}" for k, v in self.config.as_dict().items()]
-        lines.append(f"  use_sim_time = {self.get_parameter('use_sim_time').value}")
-        self.get_logger().info("parameters:\n" + "\n".join(lines))
 
     # ------------------------------------------------------------------ running
     def make_processor(self) -> OdometryProcessor:
@@ -437,106 +287,6 @@ class LineOdomNode(OdometryNodeBase, Node):
 
     def shutdown(self) -> None:
         self.stop_odometry()
-
-
-# ---------------------------------------------------------------------------------------------- start-up
-
-
-def _ros_arguments(argv: list[str]) -> list[str]:
-    """The arguments between --ros-args and --/the end (every --ros-args section)."""
-    out, inside = [], False
-    for arg in argv:
-        if arg == "--ros-args":
-            inside = True
-        elif arg == "--" and inside:
-            inside = False
-        elif inside:
-            out.append(arg)
-    return out
-
-
-def check_parameter_files(argv: list[str]) -> None:
-    """Each --params-file is a readable YAML mapping; ParameterSetupError naming the file otherwise (rcl's own
-    error would name it too, but after a log line of its own and without saying what is wrong in plain words)."""
-    args = _ros_arguments(argv)
-    for i, arg in enumerate(args):
-        if arg != "--params-file":
-            continue
-        if i + 1 >= len(args):
-            raise ParameterSetupError("bad parameter file: --params-file without a file")
-        path = args[i + 1]
-        if not os.path.isfile(path):
-            raise ParameterSetupError(f"bad parameter file: --params-file {path}: no such file")
-        try:
-            from line_odom_core.config import yaml_load
-
-            with open(path, encoding="utf-8") as f:
-                doc = yaml_load(f)
-        except Exception as err:  # noqa: BLE001 - I/O, encoding and YAML errors alike: one line
-            raise ParameterSetupError(f"bad parameter file: --params-file {path}: not a YAML file ({_one_line(err)})") from None
-        if not isinstance(doc, dict):
-            raise ParameterSetupError(f"bad parameter file: --params-file {path}: expected a ROS 2 parameter file (a mapping "
-                                      f"'<node>: ros__parameters: ...'), got {type(doc).__name__}")
-
-
-def init_rclpy(argv: list[str]) -> None:
-    """rclpy.init with rcl's own error log line held back: a bad command line becomes one ParameterSetupError line
-    naming the argument (a bad remapping, parameter rule or params file)."""
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as captured:
-        os.dup2(captured.fileno(), 2)
-        try:
-            rclpy.init(args=argv)
-            error = None
-        except _rclpy.RCLError as err:
-            error = err
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        if error is None:
-            captured.seek(0)
-            sys.stderr.buffer.write(captured.read())  # rcl's warnings of a good start stay visible
-            sys.stderr.flush()
-            return
-    text = re.sub(r"^failed to initialize rcl: ", "", str(error))
-    text = re.sub(r"(, at /\S+:\d+)+", "", text)
-    raise ParameterSetupError(f"bad command line: {_one_line(text)}")
-
-
-def run(node_factory, args=None) -> int:
-    """Start, spin; exit 0 on Ctrl-C / SIGTERM, 2 on a bad parameter, parameter file or remapping (one line, no
-    traceback)."""
-    argv = list(sys.argv if args is None else args)
-    node = None
-    code = 0
-    try:
-        check_parameter_files(argv)
-        init_rclpy(argv)
-        node = node_factory()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except ParameterSetupError as err:
-        text = str(err) if str(err).startswith("bad ") else f"bad parameter: {err}"
-        print(f"[FATAL] [{NODE_NAME}]: {text}", file=sys.stderr, flush=True)
-        code = EXIT_BAD_PARAMETER
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        # Ctrl-C / SIGTERM: rclpy's signal handler shuts the context down from another thread, and an executor
-        # building its wait set at that moment raises this instead of ExternalShutdownException (ros2/rclpy#398).
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.shutdown()
-            try:
-                node.destroy_node()
-            except Exception:  # noqa: BLE001 - the context may already be gone at shutdown
-                pass
-        if rclpy.ok():
-            rclpy.shutdown()
-    return code
 
 
 def main(args=None) -> int:
