@@ -6,7 +6,6 @@ are ordered (x y z rx ry rz) = (rho, phi); a "left" perturbation is ``T = exp(xi
 """
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
