@@ -119,13 +119,13 @@ def test_twenty_concurrent_reset_calls_are_all_answered_idle_and_while_frames_fl
     node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "diagnostics.period": 0.2})
     pub = h.publisher(PointCloud2, node.topic("points"))
     clients = [h.node.create_client(Trigger, node.topic("line_odom/reset")) for _ in range(20)]
+    # Created together with the reset clients: a response to a client the server has not discovered yet is dropped by
+    # DDS (wait_for_service only sees the server), so they get the reset burst's time to be discovered.
+    getters = [h.node.create_client(GetParameters, node.topic("line_odom/get_parameters")) for _ in range(20)]
     h.wait_matched(pub, node, STARTUP_S)
-    for c in clients:
+    for c in clients + getters:
         assert c.wait_for_service(timeout_sec=STARTUP_S)
     _reset_burst(h, node, clients)  # idle
-    getters = [h.node.create_client(GetParameters, node.topic("line_odom/get_parameters")) for _ in range(20)]
-    for c in getters:
-        assert c.wait_for_service(timeout_sec=STARTUP_S)
     futures = [c.call_async(GetParameters.Request(names=["downsample"])) for c in getters]
     h.wait_for(lambda: all(f.done() for f in futures), 60, "all 20 get_parameters responses", node)
     assert all(f.result().values[0].integer_value == 6 for f in futures)
