@@ -112,23 +112,15 @@ def _reset_burst(h, node, clients):
 
 
 def test_twenty_concurrent_reset_calls_are_all_answered_idle_and_while_frames_flow(run_node):
-    """~/reset, and the parameter services beside it: 20 callers at once all get their answer."""
-    from rcl_interfaces.srv import GetParameters
-
+    """~/reset: 20 callers at once all get their answer, idle and while frames flow."""
     seq = kitti_sequence("07", 4)
     node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "diagnostics.period": 0.2})
     pub = h.publisher(PointCloud2, node.topic("points"))
     clients = [h.node.create_client(Trigger, node.topic("line_odom/reset")) for _ in range(20)]
-    # Created together with the reset clients: a response to a client the server has not discovered yet is dropped by
-    # DDS (wait_for_service only sees the server), so they get the reset burst's time to be discovered.
-    getters = [h.node.create_client(GetParameters, node.topic("line_odom/get_parameters")) for _ in range(20)]
     h.wait_matched(pub, node, STARTUP_S)
-    for c in clients + getters:
+    for c in clients:
         assert c.wait_for_service(timeout_sec=STARTUP_S)
     _reset_burst(h, node, clients)  # idle
-    futures = [c.call_async(GetParameters.Request(names=["downsample"])) for c in getters]
-    h.wait_for(lambda: all(f.done() for f in futures), 60, "all 20 get_parameters responses", node)
-    assert all(f.result().values[0].integer_value == 6 for f in futures)
     msgs = [kitti_unorganized(seq, i, 50.0 + 0.1 * i) for i in range(4)]
     flowing = {"run": True, "k": 0}
 
