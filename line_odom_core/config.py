@@ -158,6 +158,11 @@ _ENTRIES: list[ConfigEntry] = [
                 "prediction is rejected", 1e-3, 1000.0),
     ConfigEntry("registration.max_rotation_deg", float, 30.0, "an estimate rotated more than this (deg) from the "
                 "prediction is rejected", 0.01, 180.0),
+    ConfigEntry("registration.max_acceleration", float, 20.0, "m/s^2: with a velocity, an estimate farther from the "
+                "constant-velocity prediction than this acceleration moves the sensor in a frame (a dt^2) is rejected: "
+                "a repeated structure's alias of the motion", 1e-3, 1e6),
+    ConfigEntry("registration.max_angular_acceleration", float, 50.0, "rad/s^2: ... or turned farther from it than "
+                "alpha dt^2", 1e-3, 1e6),
     ConfigEntry("registration.constant_velocity", bool, True, "predict each motion from the previous one "
                 "(scaled by the stamp interval); false = identity", None, None),
     ConfigEntry("registration.persistence_window", int, 0, "frames over which the prediction measures, per axis, "
@@ -227,6 +232,29 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("points.max_translation", float, 0.1, "a refinement moving the lines' estimate further than this (m) "
                 "is not taken", 0.0, 10.0),
     ConfigEntry("points.max_rotation_deg", float, 0.5, "... or turning it more than this (deg)", 0.0, 180.0),
+    # --- the points' check of each motion (beyond the paper; docs/NODE.md, "Checked by the points") ---
+    ConfigEntry("evidence.enabled", bool, True, "check each frame's motion against this scan's points on the planes "
+                "of a local map of the last registered scans; a motion they contradict is replaced by the one they "
+                "support, or held and flagged", None, None),
+    ConfigEntry("evidence.voxel", float, 1.0, "the local map's cubes (m): each holds the plane of its points", 0.01,
+                10.0),
+    ConfigEntry("evidence.map_scans", int, 10, "registered scans kept in the local map", 1, 100),
+    ConfigEntry("evidence.map_points", int, 40000, "points the local map keeps, spread evenly over its scans", 100,
+                10000000),
+    ConfigEntry("evidence.max_points", int, 4000, "of this scan's points checked, spread evenly over the scan", 100,
+                10000000),
+    ConfigEntry("evidence.min_points", int, 5, "points a map voxel needs for its plane", 3, 1000000),
+    ConfigEntry("evidence.min_planarity", float, 0.1, "a map voxel is flat enough when (l1 - l0) / l2 of its points' "
+                "scatter's eigenvalues reaches this", 0.0, 1.0),
+    ConfigEntry("evidence.inlier_distance", float, 0.1, "a point this close (m) to its map voxel's plane supports the "
+                "motion; motions closer than this are not told apart", 1e-4, 10.0),
+    ConfigEntry("evidence.iterations", int, 10, "Gauss-Newton steps of each point fit", 1, 100),
+    ConfigEntry("evidence.significance", float, 3.0, "McNemar's z over the points only one of two motions supports "
+                "above which the points prefer the other motion", 1e-3, 100.0),
+    ConfigEntry("evidence.min_matches", int, 200, "checked points on the map's planes below which the points tell "
+                "nothing", 1, 10000000),
+    ConfigEntry("evidence.search_range", float, 3.0, "metres searched either way along the translations the lines "
+                "leave unobserved", 0.0, 100.0),
 ]
 
 CHOICES: dict[str, tuple[str, ...]] = {"ransac.solver": ("auto", "7L", "3L1P", "1L2P"),

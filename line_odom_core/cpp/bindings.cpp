@@ -846,6 +846,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   ms["candidates"] = s.ms.candidates;
   ms["ransac"] = s.ms.ransac;
   ms["points"] = s.ms.points;
+  ms["evidence"] = s.ms.evidence;
   ms["total"] = s.ms.total;
   py::dict d;
   d["solver"] = s.solver;
@@ -875,12 +876,17 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["recovered"] = s.recovered;
   d["turn_searched"] = s.turn_searched;
   d["turn_recovered"] = s.turn_recovered;
+  d["first_motion_corrected"] = s.first_motion_corrected;
   d["window_scans"] = s.window_scans;
   d["deskewed"] = s.deskewed;
   d["previous_deskewed_again"] = s.previous_deskewed_again;
   d["deskewed_again"] = s.deskewed_again;
   d["points_refined"] = s.points_refined;
   d["point_matches"] = s.point_matches;
+  d["evidence"] = s.evidence;
+  d["evidence_matches"] = s.evidence_matches;
+  d["evidence_inliers"] = s.evidence_inliers;
+  d["evidence_z"] = s.evidence_z;
   d["ms"] = ms;
   return d;
 }

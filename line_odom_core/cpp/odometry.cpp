@@ -26,7 +26,8 @@ constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer th
                                                       // are one
 constexpr double kUnmeasuredCosine = 0.5;  // a direction not measured stays so while the held directions reach within
                                            // 60 deg of it (they wobble between x and pitch on KITTI 04 at 1/64)
-constexpr int kRoundsAgain = 2;  // candidates re-associated and refined after a sweep is deskewed again
+constexpr int kRoundsAgain = 2;
+constexpr double kEvidenceLever = 20.0;  // m: a rotation's reach at the distance most of a scan's points lie within  // candidates re-associated and refined after a sweep is deskewed again
 
 // The caller's motion guess: finite, with an orthonormal rotation of determinant +1.
 // A finite orthonormal matrix with determinant +1.
@@ -116,6 +117,23 @@ std::uint64_t mix_seed(std::uint64_t seed, std::uint64_t frame, std::uint64_t pa
   return z ^ (z >> 31);
 }
 
+// A scan the sensor model organizes into fewer rows than a V-line needs points (a 2D laser's single ring, a cloud of
+// another sensor) cannot be registered: refused at any frame before it touches the odometry's state.
+void check_fills_rows(const RangeImage& image, const SensorModel& sensor, int min_points_v) {
+  int rows = 0;
+  for (int r = 0; r < image.rows; ++r)
+    for (int c = 0; c < image.cols; ++c)
+      if (image.is_valid(r, c)) {
+        ++rows;
+        break;
+      }
+  if (rows == 0 || rows >= min_points_v) return;  // (an empty scan is held as a failed registration)
+  throw std::invalid_argument("points: the cloud fills " + std::to_string(rows) + " of the " +
+                              std::to_string(image.rows) + " rows the sensor model '" + sensor.name +
+                              "' organizes it into; a scan needs points in at least lines.min_points_v = " +
+                              std::to_string(min_points_v) + " rows (a 2D laser or another sensor's cloud?)");
+}
+
 }  // namespace
 
 RigidTransform scale_motion(const RigidTransform& T, double alpha) {
@@ -150,6 +168,20 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
     throw std::invalid_argument("registration.window: expected 1 to 10 scans, got " +
                                 std::to_string(config_.registration.window));
   window_ = FeatureWindow(config_.registration.window);
+  const EvidenceOptions& ev = config_.evidence;
+  if (!(ev.voxel >= 0.01)) throw std::invalid_argument("evidence.voxel: expected >= 0.01 m");
+  if (ev.map_scans < 1 || ev.map_scans > 100) throw std::invalid_argument("evidence.map_scans: expected 1 to 100");
+  if (ev.map_points < 100) throw std::invalid_argument("evidence.map_points: expected >= 100");
+  if (ev.max_points < 100) throw std::invalid_argument("evidence.max_points: expected >= 100");
+  if (ev.min_points < 3) throw std::invalid_argument("evidence.min_points: expected >= 3 (a plane)");
+  if (!(ev.min_planarity >= 0.0 && ev.min_planarity <= 1.0))
+    throw std::invalid_argument("evidence.min_planarity: expected 0 to 1");
+  if (!(ev.inlier_distance > 0.0)) throw std::invalid_argument("evidence.inlier_distance: expected > 0 m");
+  if (ev.iterations < 1) throw std::invalid_argument("evidence.iterations: expected >= 1");
+  if (!(ev.significance > 0.0)) throw std::invalid_argument("evidence.significance: expected > 0");
+  if (ev.min_matches < 1) throw std::invalid_argument("evidence.min_matches: expected >= 1");
+  if (!(ev.search_range >= 0.0)) throw std::invalid_argument("evidence.search_range: expected >= 0 m");
+  local_map_ = LocalMap(ev.map_scans, ev.map_points, ev.voxel);
   const PointRefineOptions& pts = config_.points;
   if (!(pts.weight >= 0.0)) throw std::invalid_argument("points.weight: expected >= 0 (0: off)");
   if (!(pts.voxel >= 0.01)) throw std::invalid_argument("points.voxel: expected >= 0.01 m");
@@ -168,6 +200,10 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   if (config_.sensor.deskew_iterations < 0 || config_.sensor.deskew_iterations > 10)
     throw std::invalid_argument("sensor.deskew_iterations: expected 0 (deskewed at the prediction only) to 10, got " +
                                 std::to_string(config_.sensor.deskew_iterations));
+  if (!(config_.registration.max_acceleration > 0.0))
+    throw std::invalid_argument("registration.max_acceleration: expected > 0 m/s^2");
+  if (!(config_.registration.max_angular_acceleration > 0.0))
+    throw std::invalid_argument("registration.max_angular_acceleration: expected > 0 rad/s^2");
   if (config_.threads < 0 || config_.threads > 256)
     throw std::invalid_argument("threads: expected 0 (one per hardware thread) to 256, got " +
                                 std::to_string(config_.threads));
@@ -194,6 +230,9 @@ void Odometry::reset(const RigidTransform& pose) {
   have_prev_sweep_ = false;
   registered_velocities_.clear();
   prev_surface_ = SurfaceMap{};
+  local_map_.clear();
+  first_motion_base_ = ScanFeatures{};
+  first_motion_unconfirmed_ = false;
 }
 
 RigidTransform Odometry::predict(double stamp, Vec6* persistence) const {
@@ -241,6 +280,7 @@ FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
       organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
+  if (frames_ > 0) check_fills_rows(image, sensor_, config_.features.lines.min_points_v);
   return register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
 }
 
@@ -280,6 +320,7 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   RangeImage image = rows > 0 ? organize_cloud(data, rows, cols, stride, config_.sensor.limits)
                               : organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits,
                                                             step);
+  if (rows == 0 && frames_ > 0) check_fills_rows(image, sensor_, config_.features.lines.min_points_v);
   SweepTimes sweep;
   sweep.velocity = sweep_velocity(stamp, guess, rotation_guess, sweep_rate);
   if (count > 0) {
@@ -419,6 +460,154 @@ PassOutcome Odometry::register_again(const ScanFeatures& cur, const RigidTransfo
   return out;
 }
 
+namespace {
+
+// Translation and rotation (at kEvidenceLever) between two motions, in metres.
+double motion_distance(const RigidTransform& a, const RigidTransform& b) {
+  const RigidTransform d = a.inverse() * b;
+  return d.t.norm() + kEvidenceLever * rotation_angle(d.R);
+}
+
+// Every `step`-th valid point of the image, at most `budget` of them.
+std::vector<Vec3> spread_points(const RangeImage& image, int budget) {
+  const std::size_t valid = static_cast<std::size_t>(std::count(image.valid.begin(), image.valid.end(), 1));
+  const std::size_t step = std::max<std::size_t>(1, (valid + budget - 1) / std::max(1, budget));
+  std::vector<Vec3> out;
+  out.reserve(valid / step + 1);
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < image.points.size(); ++i)
+    if (image.valid[i] && k++ % step == 0) out.push_back(image.points[i]);
+  return out;
+}
+
+// The unit translations along which `outcome` holds the prediction (its held directions), or, when it registered
+// nothing, the prediction's own direction of travel and the horizontal axes of the sensor.
+std::vector<Vec3> unobserved_translations(const PassOutcome& outcome, const RigidTransform& prediction) {
+  std::vector<Vec3> axes;
+  auto add = [&axes](const Vec3& v) {
+    if (v.norm() < 0.3) return;  // mostly a rotation
+    const Vec3 u = v.normalized();
+    for (const Vec3& a : axes)
+      if (std::abs(a.dot(u)) > 0.9) return;
+    axes.push_back(u);
+  };
+  if (outcome.have && outcome.held_directions > 0) {
+    const Eigen::SelfAdjointEigenSolver<Mat6> es(outcome.held_projector);
+    for (int k = 0; k < 6; ++k)
+      if (es.eigenvalues()(k) > 0.5) add(es.eigenvectors().col(k).head<3>());
+  } else if (!outcome.have) {
+    if (prediction.t.norm() > 1e-3) add(prediction.t);
+    add(Vec3::UnitX());
+    add(Vec3::UnitY());
+  }
+  return axes;
+}
+
+}  // namespace
+
+bool Odometry::confirm_first_motion(const ScanFeatures& cur, RigidTransform* prediction, PassOutcome* outcome,
+                                    FrameStats* st) {
+  if (!registered_in_full(*outcome) || first_motion_base_.h_lines.empty()) return false;
+  const double reach_t = reach_translation_, reach_r = reach_rotation_;
+  reach_translation_ = config_.registration.max_translation;  // searched as a first motion is
+  reach_rotation_ = config_.registration.max_rotation_deg * kPi / 180.0;
+  FrameStats direct_stats;
+  const PassOutcome direct = first_motion(first_motion_base_, cur, RigidTransform::identity(), nullptr, &direct_stats);
+  reach_translation_ = reach_t, reach_rotation_ = reach_r;
+  st->ms.candidates += direct_stats.ms.candidates;
+  st->ms.ransac += direct_stats.ms.ransac;
+  st->iterations += direct_stats.iterations;
+  if (!registered_in_full(direct)) return false;
+  const RigidTransform chained = last_delta_ * outcome->best;
+  const RigidTransform difference = chained.inverse() * direct.best;
+  if (difference.t.norm() <= reach_translation_ && rotation_angle(difference.R) <= reach_rotation_) return false;
+  const RigidTransform half = scale_motion(direct.best, 0.5);
+  FrameStats again_stats;
+  PassOutcome again = register_features(prev_features_, cur, half, half, true, &again_stats);
+  st->ms.candidates += again_stats.ms.candidates;
+  st->ms.ransac += again_stats.ms.ransac;
+  st->iterations += again_stats.iterations;
+  if (!registered_in_full(again)) return false;
+  *outcome = again;
+  *prediction = half;
+  return true;
+}
+
+// The lines' outcome is checked on evidence they did not produce: this scan's points on the local map's planes. Each
+// of the lines' motion, the prediction and standing still starts a point fit (and, where the lines leave translations
+// unobserved, the best-supported shift along them); the fit whose points' support gains most over the lines' motion
+// (McNemar's test, support_gain) contradicts it when the gain is significant and the two are farther apart than the
+// points resolve (evidence.inlier_distance). The lines are then registered again from that fit's motion, which picks
+// the basin: their estimate from there is taken where the points agree with it; else the frame is held and flagged. The
+// points' own motion is never taken: on a sparse scan their fit can slide along a street as the lines' can.
+void Odometry::check_with_points(const ScanFeatures& cur, const std::vector<Vec3>& points,
+                                 const RigidTransform& prediction, PassOutcome* outcome, FrameStats* st) {
+  const EvidenceOptions& ev = config_.evidence;
+  SurfaceMap& map = local_map_.surface();
+  const RigidTransform reference_motion = outcome->have ? outcome->best : prediction;
+  const PointSupport reference = point_support(map, points, reference_motion, ev);
+  st->evidence_matches = reference.matched;
+  st->evidence_inliers = reference.inliers;
+  if (reference.matched < ev.min_matches) {
+    st->evidence = "no_map";
+    return;
+  }
+
+  std::vector<RigidTransform> starts{reference_motion, prediction, RigidTransform::identity()};
+  const double step = 0.5 * ev.voxel;  // a fit reaches about half a voxel
+  const int steps = static_cast<int>(std::floor(ev.search_range / step));
+  int compared = 0;  // motions whose gain over the lines' was measured, the best of which is tested
+  for (const Vec3& u : unobserved_translations(*outcome, prediction)) {
+    compared += 2 * steps;
+    RigidTransform best_shift = reference_motion;
+    double best_gain = 0.0;
+    for (int k = -steps; k <= steps; ++k) {
+      if (k == 0) continue;
+      RigidTransform shifted = reference_motion;
+      shifted.t += (k * step) * u;
+      const double gain = support_gain(points, reference, point_support(map, points, shifted, ev));
+      if (gain > best_gain) best_gain = gain, best_shift = shifted;
+    }
+    starts.push_back(best_shift);
+  }
+  PointSupport best;
+  double best_gain = -1e300;
+  for (std::size_t i = 0; i < starts.size(); ++i) {
+    bool repeated = false;
+    for (std::size_t j = 0; j < i; ++j) repeated = repeated || motion_distance(starts[i], starts[j]) < 1e-6;
+    if (repeated) continue;
+    ++compared;
+    PointSupport fit = fit_points(map, points, starts[i], ev);
+    const double gain = support_gain(points, reference, fit);
+    if (gain > best_gain) best_gain = gain, best = std::move(fit);
+  }
+  st->evidence_z = best_gain;
+  // The best of `compared` gains is tested: the one-sided tail p ~ phi(z) / z divided among them (Bonferroni) raises
+  // z^2 by about 2 ln(compared).
+  const double threshold = std::sqrt(ev.significance * ev.significance + 2.0 * std::log(std::max(1, compared)));
+  if (best_gain <= threshold || motion_distance(best.T, reference_motion) <= ev.inlier_distance) {
+    st->evidence = "agrees";
+    return;
+  }
+  // The lines again, from the basin the points chose.
+  FrameStats again_stats = *st;
+  PassOutcome again = register_features(prev_features_, cur, best.T, best.T, true, &again_stats);
+  st->ms.candidates = again_stats.ms.candidates;
+  st->ms.ransac = again_stats.ms.ransac;
+  st->iterations = again_stats.iterations;
+  if (again.have && support_gain(points, best, point_support(map, points, again.best, ev)) > -threshold) {
+    *outcome = again;
+    st->evidence = "corrected";
+    return;
+  }
+  char z[32];
+  std::snprintf(z, sizeof z, "%.1f", st->evidence_z);
+  outcome->have = false;
+  outcome->failure = std::string("the local map's points contradict the motion (McNemar z ") + z +
+                     " > evidence.significance), and the lines registered from the points' motion disagree with it";
+  st->evidence = "unsupported";
+}
+
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
                                      const RigidTransform* guess, const Mat3* rotation_guess) {
   check_rotation_guess(rotation_guess, guess);
@@ -549,8 +738,7 @@ Odometry::LastPassFit Odometry::refit_last_pass(CandidateIndex& index, const Sca
 bool Odometry::within_reach(const RigidTransform& prediction, const RigidTransform& T) const {
   if (!T.is_finite()) return false;
   const RigidTransform deviation = prediction.inverse() * T;
-  return deviation.t.norm() <= config_.registration.max_translation &&
-         rotation_angle(deviation.R) <= config_.registration.max_rotation_deg * kPi / 180.0;
+  return deviation.t.norm() <= reach_translation_ && rotation_angle(deviation.R) <= reach_rotation_;
 }
 
 PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeatures& cur,
@@ -807,6 +995,9 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     st.ms.features += stage.ms();
   }
 
+  std::vector<Vec3> checked_points;  // this scan's, for the local map's check (evidence.*)
+  if (config_.evidence.enabled) checked_points = spread_points(*input, config_.evidence.max_points);
+
   SurfaceMap surface;  // this scan's, for the point-to-plane refinement (points.weight)
   if (points_refining()) {
     stage = Stopwatch();
@@ -823,9 +1014,17 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
   } else {
     const double dt = stamp - prev_stamp_;
     const bool first_motion_frame = !have_velocity_;
+    reach_translation_ = config_.registration.max_translation;
+    reach_rotation_ = config_.registration.max_rotation_deg * kPi / 180.0;
+    if (have_velocity_ && !guessed && config_.registration.constant_velocity && unmeasured_projector_.isZero() &&
+        std::isfinite(dt) && dt > 0.0) {
+      // A measured velocity changes by at most the accelerations over a frame: farther from the prediction lies an
+      // alias. (A velocity never measured along some direction predicts standing still there: no bound.)
+      reach_translation_ = std::min(reach_translation_, config_.registration.max_acceleration * dt * dt);
+      reach_rotation_ = std::min(reach_rotation_, config_.registration.max_angular_acceleration * dt * dt);
+    }
     const RigidTransform own_prediction = guessed ? *guess : predict(stamp, &st.persistence);
-    const RigidTransform prediction =
-        rotation_guessed ? with_rotation(own_prediction, *rotation_guess) : own_prediction;
+    RigidTransform prediction = rotation_guessed ? with_rotation(own_prediction, *rotation_guess) : own_prediction;
     st.prediction = guessed ? "guess"
                     : have_velocity_ && config_.registration.constant_velocity ? "constant_velocity"
                                                                                 : "standing_still";
@@ -858,7 +1057,17 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     // (kept with a rotation guess: it starts only where the registration failed or lost support, never on the
     // yaw-flip drive with a gyro 5 deg off; a gyro turned the wrong way, 24 frames: 8.4 -> 0.23 deg mean, NODE.md)
     if (!first_motion_frame) st.turn_recovered = search_turn(prev_features_, features, prediction, &outcome, &st);
+    if (first_motion_unconfirmed_ && !guessed)
+      st.first_motion_corrected = confirm_first_motion(features, &prediction, &outcome, &st);
+    first_motion_unconfirmed_ = first_motion_frame && registered_in_full(outcome) && !guessed;
+    if (first_motion_unconfirmed_) first_motion_base_ = prev_features_;
+    else first_motion_base_ = ScanFeatures{};
     if (sweep != nullptr) st.deskewed_again = deskew_at_registered(&features, sweep, dt, prediction, &outcome, &st);
+    if (config_.evidence.enabled && !local_map_.empty()) {
+      stage = Stopwatch();
+      check_with_points(features, checked_points, prediction, &outcome, &st);
+      st.ms.evidence += stage.ms();
+    }
     const RigidTransform& best = outcome.best;
     const MotionStats& best_stats = outcome.stats;
     const bool have = outcome.have;
@@ -872,7 +1081,8 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
                                                                              : reg.covariance_scale);
       const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
       const Mat6 prior = motion_covariance(pt, pr);
-      const bool fuse_prior = have_velocity_ && pt > 0.0;
+      // A prediction the points contradicted is no prior.
+      const bool fuse_prior = have_velocity_ && pt > 0.0 && st.evidence != "corrected";
       const Vec6 xi = motion_difference(best, prediction);
       if (outcome.held_directions > 0) {
         // A partial estimate says nothing along the held directions (covariance zero there, refine.hpp): fused in
@@ -999,6 +1209,12 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     have_velocity_ = true;
   }
 
+  if (config_.evidence.enabled) {
+    stage = Stopwatch();
+    if (st.registered && !st.degenerate) local_map_.add(spread_points(*input, config_.evidence.map_points), pose_);
+    else if (!local_map_.empty()) local_map_.anchor(pose_);
+    st.ms.evidence += stage.ms();
+  }
   if (points_refining()) prev_surface_ = std::move(surface);
   if (config_.registration.window > 1) window_.push(features, result.delta, st.registered && !st.degenerate);
   prev_features_ = std::move(features);

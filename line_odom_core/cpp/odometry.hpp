@@ -24,6 +24,8 @@
 #include "range_image.hpp"
 #include "scan_features.hpp"
 #include "types.hpp"
+#include "validation/local_map.hpp"
+#include "validation/point_evidence.hpp"
 #include "worker_pool.hpp"
 
 namespace line_odom {
@@ -34,6 +36,10 @@ struct RegistrationOptions {
   int min_inliers = 12;                 // fewer: failed, hold the prediction
   double max_translation = 5.0;         // reject estimates this far (m) from the prediction
   double max_rotation_deg = 30.0;       // ... or rotated this much from it
+  double max_acceleration = 20.0;       // m/s^2: with a velocity, estimates farther from the constant-velocity
+                                        // prediction than this acceleration moves the sensor in a frame, a dt^2, are
+                                        // rejected (a repeated structure's alias of the motion)
+  double max_angular_acceleration = 50.0;  // rad/s^2: ... or turned farther than this, alpha dt^2
   bool constant_velocity = true;        // false: predict identity
   int persistence_window = 0;           // frames: the prediction scales the last motion per axis by its measured
                                         // persistence (motion_persistence.hpp); 0: the last motion as it was
@@ -92,12 +98,14 @@ struct OdometryConfig {
   MotionOptions ransac;
   RegistrationOptions registration;
   PointRefineOptions points;  // points.*: the point-to-plane refinement (point_refine.hpp)
+  EvidenceOptions evidence;   // evidence.*: each motion checked against the local map's points (point_evidence.hpp)
 };
 
 struct StageMilliseconds {
   double organize = 0, downsample = 0, features = 0, candidates = 0, ransac = 0, total = 0;
   double lines = 0, normals = 0, planes = 0;  // parts of features
   double points = 0;  // the point-to-plane refinement, its surface built for the next frame included
+  double evidence = 0;  // checking the motion against the local map, and updating the map
   double deskew = 0;  // correcting both scans' sweeps (before the registration: part of organize; after it, at the
                       // registered motion: besides the stages)
 };
@@ -127,6 +135,9 @@ struct FrameStats {
   int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
                                   // still): searched on the next frames
   bool recovered = false;       // this frame's motion was found by that search
+  bool first_motion_corrected = false;  // the first motion chained with this frame's contradicted the registration of
+                                        // this scan against the scan before the first motion: the velocity was taken
+                                        // from that registration instead (confirm_first_motion)
   bool turn_searched = false;   // the registration failed, held a rotation or kept under a third of the last frame's
                                 // inlier weight: the heading was scanned (search_turn)
   bool turn_recovered = false;  // ... and the motion registered from the best-supported heading replaced it
@@ -138,6 +149,14 @@ struct FrameStats {
                            // (sensor.deskew_iterations)
   bool points_refined = false;  // the point-to-plane refinement (points.weight) moved the lines' estimate
   int point_matches = 0;        // ... with this many of the scan's voxel means on a planar voxel of the previous scan
+  // The points' verdict on the lines' motion (evidence.*): "agrees", "corrected" (the points' motion replaced it),
+  // "unsupported" (contradicted, and no motion the points support instead: held), "no_map" (too few points on the
+  // map's planes to tell), "off"
+  std::string evidence = "off";
+  int evidence_matches = 0;     // this scan's checked points on a planar voxel of the local map, at the frame's motion
+  int evidence_inliers = 0;     // ... within evidence.inlier_distance of it
+  double evidence_z = 0.0;      // McNemar's z of the points' best motion over the lines' (> evidence.significance:
+                                // the lines' motion is contradicted)
   StageMilliseconds ms;
 };
 
@@ -313,6 +332,16 @@ class Odometry {
   bool adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                        const RigidTransform& held, const RigidTransform& start, PassOutcome* outcome,
                        FrameStats* st) const;
+  // On the frame after a first motion: registers `cur` against the scan before it from standing still; when the two
+  // frames' chained motions differ from that by more than the accelerations allow, the first motion was an alias (a
+  // repeated structure, a sweep's seam) and this frame is registered again from half the direct motion, which
+  // replaces *prediction. True when it did.
+  bool confirm_first_motion(const ScanFeatures& cur, RigidTransform* prediction, PassOutcome* outcome,
+                            FrameStats* st);
+  // The points' check of the lines' outcome (point_evidence.hpp): replaces it with the motion the local map's points
+  // support when they contradict it; `points`: this scan's checked points.
+  void check_with_points(const ScanFeatures& cur, const std::vector<Vec3>& points, const RigidTransform& prediction,
+                         PassOutcome* outcome, FrameStats* st);
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
   // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
   double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
@@ -329,6 +358,8 @@ class Odometry {
   Mat6 unmeasured_projector_ = Mat6::Zero();
   double last_inlier_weight_ = 0.0;  // of the last frame when it was registered in full (search_turn), else 0
   double last_dt_ = 0.0;
+  double reach_translation_ = 0.0;  // this frame's registration.max_translation / max_rotation_deg (rad), narrowed by
+  double reach_rotation_ = 0.0;     // the accelerations while the prediction is a velocity
   double prev_stamp_ = 0.0;
   bool have_velocity_ = false;
   int frames_ = 0;
@@ -340,6 +371,11 @@ class Odometry {
   std::deque<SweepVelocity> registered_velocities_;  // of the last sensor.deskew_trend frames, newest first
   bool have_prev_sweep_ = false;
   SurfaceMap prev_surface_;  // the previous scan's surface (points.weight > 0)
+  LocalMap local_map_;       // the last registered scans' points, in the previous scan's frame (evidence.*)
+  // The scan before a first motion, kept for one frame: the next scan is registered against it from standing still,
+  // and the first motion chained with the next is checked against that direct registration (confirm_first_motion).
+  ScanFeatures first_motion_base_;
+  bool first_motion_unconfirmed_ = false;
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 
