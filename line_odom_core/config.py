@@ -158,11 +158,6 @@ _ENTRIES: list[ConfigEntry] = [
                 "prediction is rejected", 1e-3, 1000.0),
     ConfigEntry("registration.max_rotation_deg", float, 30.0, "an estimate rotated more than this (deg) from the "
                 "prediction is rejected", 0.01, 180.0),
-    ConfigEntry("registration.max_acceleration", float, 20.0, "m/s^2: with a velocity, an estimate farther from the "
-                "constant-velocity prediction than this acceleration moves the sensor in a frame (a dt^2) is rejected: "
-                "a repeated structure's alias of the motion", 1e-3, 1e6),
-    ConfigEntry("registration.max_angular_acceleration", float, 50.0, "rad/s^2: ... or turned farther from it than "
-                "alpha dt^2", 1e-3, 1e6),
     ConfigEntry("registration.constant_velocity", bool, True, "predict each motion from the previous one "
                 "(scaled by the stamp interval); false = identity", None, None),
     ConfigEntry("registration.persistence_window", int, 0, "frames over which the prediction measures, per axis, "
@@ -233,9 +228,9 @@ _ENTRIES: list[ConfigEntry] = [
                 "is not taken", 0.0, 10.0),
     ConfigEntry("points.max_rotation_deg", float, 0.5, "... or turning it more than this (deg)", 0.0, 180.0),
     # --- the points' check of each motion (beyond the paper; docs/NODE.md, "Checked by the points") ---
-    ConfigEntry("evidence.enabled", bool, True, "check each frame's motion against this scan's points on the planes "
-                "of a local map of the last registered scans; a motion they contradict is replaced by the one they "
-                "support, or held and flagged", None, None),
+    ConfigEntry("evidence.enabled", bool, False, "check each frame's motion against this scan's points on the planes "
+                "of a local map of the last registered scans; a motion they significantly contradict is flagged "
+                "(degenerate, the fallback covariance)", None, None),
     ConfigEntry("evidence.voxel", float, 1.0, "the local map's cubes (m): each holds the plane of its points", 0.01,
                 10.0),
     ConfigEntry("evidence.map_scans", int, 10, "registered scans kept in the local map", 1, 100),

@@ -876,7 +876,6 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["recovered"] = s.recovered;
   d["turn_searched"] = s.turn_searched;
   d["turn_recovered"] = s.turn_recovered;
-  d["first_motion_corrected"] = s.first_motion_corrected;
   d["window_scans"] = s.window_scans;
   d["deskewed"] = s.deskewed;
   d["previous_deskewed_again"] = s.previous_deskewed_again;

@@ -53,11 +53,6 @@ void check_rotation_guess(const Mat3* rotation_guess, const RigidTransform* gues
                                 "determinant +1)");
 }
 
-// An estimate of every direction of the motion (none held at the prediction).
-bool registered_in_full(const PassOutcome& outcome) {
-  return outcome.have && !outcome.stats.degenerate && outcome.held_directions == 0 &&
-         outcome.stats.covariance.allFinite();
-}
 
 // The prediction turned by `R` instead of its own rotation, its translation along the same body-frame velocity: a
 // constant velocity turning at rate w moves the sensor by about exp(w dt / 2) v dt, so the translation turns by the
@@ -95,10 +90,6 @@ Mat6 motion_covariance(double translation_sigma, double rotation_sigma) {
   return covariance;
 }
 
-double rotation_angle(const Mat3& R) {
-  const double c = std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0);
-  return std::acos(c);
-}
 
 const char* solver_name(int solver) {
   switch (solver) {
@@ -119,7 +110,8 @@ std::uint64_t mix_seed(std::uint64_t seed, std::uint64_t frame, std::uint64_t pa
 
 // A scan the sensor model organizes into fewer rows than a V-line needs points (a 2D laser's single ring, a cloud of
 // another sensor) cannot be registered: refused at any frame before it touches the odometry's state.
-void check_fills_rows(const RangeImage& image, const SensorModel& sensor, int min_points_v) {
+void check_fills_rows(const RangeImage& image, std::size_t count, const SensorModel& sensor, int min_points_v) {
+  if (count == 0) return;  // an empty scan is held as a failed registration
   int rows = 0;
   for (int r = 0; r < image.rows; ++r)
     for (int c = 0; c < image.cols; ++c)
@@ -127,14 +119,20 @@ void check_fills_rows(const RangeImage& image, const SensorModel& sensor, int mi
         ++rows;
         break;
       }
-  if (rows == 0 || rows >= min_points_v) return;  // (an empty scan is held as a failed registration)
-  throw std::invalid_argument("points: the cloud fills " + std::to_string(rows) + " of the " +
+  if (rows >= min_points_v) return;
+  throw std::invalid_argument("xyz: the cloud's points fill " + std::to_string(rows) + " of the " +
                               std::to_string(image.rows) + " rows the sensor model '" + sensor.name +
-                              "' organizes it into; a scan needs points in at least lines.min_points_v = " +
-                              std::to_string(min_points_v) + " rows (a 2D laser or another sensor's cloud?)");
+                              "' keeps of it; a scan needs points in at least lines.min_points_v = " +
+                              std::to_string(min_points_v) + " rows (a 2D laser, another sensor's cloud, every point "
+                              "out of sensor.min_range..max_range?)");
 }
 
 }  // namespace
+
+bool registered_in_full(const PassOutcome& outcome) {
+  return outcome.have && !outcome.stats.degenerate && outcome.held_directions == 0 &&
+         outcome.stats.covariance.allFinite();
+}
 
 RigidTransform scale_motion(const RigidTransform& T, double alpha) {
   Eigen::AngleAxisd aa(T.R);
@@ -200,10 +198,6 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
   if (config_.sensor.deskew_iterations < 0 || config_.sensor.deskew_iterations > 10)
     throw std::invalid_argument("sensor.deskew_iterations: expected 0 (deskewed at the prediction only) to 10, got " +
                                 std::to_string(config_.sensor.deskew_iterations));
-  if (!(config_.registration.max_acceleration > 0.0))
-    throw std::invalid_argument("registration.max_acceleration: expected > 0 m/s^2");
-  if (!(config_.registration.max_angular_acceleration > 0.0))
-    throw std::invalid_argument("registration.max_angular_acceleration: expected > 0 rad/s^2");
   if (config_.threads < 0 || config_.threads > 256)
     throw std::invalid_argument("threads: expected 0 (one per hardware thread) to 256, got " +
                                 std::to_string(config_.threads));
@@ -231,8 +225,6 @@ void Odometry::reset(const RigidTransform& pose) {
   registered_velocities_.clear();
   prev_surface_ = SurfaceMap{};
   local_map_.clear();
-  first_motion_base_ = ScanFeatures{};
-  first_motion_unconfirmed_ = false;
 }
 
 RigidTransform Odometry::predict(double stamp, Vec6* persistence) const {
@@ -280,7 +272,7 @@ FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
       organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
-  if (frames_ > 0) check_fills_rows(image, sensor_, config_.features.lines.min_points_v);
+  if (frames_ > 0) check_fills_rows(image, count, sensor_, config_.features.lines.min_points_v);
   return register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
 }
 
@@ -320,7 +312,7 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   RangeImage image = rows > 0 ? organize_cloud(data, rows, cols, stride, config_.sensor.limits)
                               : organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits,
                                                             step);
-  if (rows == 0 && frames_ > 0) check_fills_rows(image, sensor_, config_.features.lines.min_points_v);
+  if (rows == 0 && frames_ > 0) check_fills_rows(image, count, sensor_, config_.features.lines.min_points_v);
   SweepTimes sweep;
   sweep.velocity = sweep_velocity(stamp, guess, rotation_guess, sweep_rate);
   if (count > 0) {
@@ -505,41 +497,13 @@ std::vector<Vec3> unobserved_translations(const PassOutcome& outcome, const Rigi
 
 }  // namespace
 
-bool Odometry::confirm_first_motion(const ScanFeatures& cur, RigidTransform* prediction, PassOutcome* outcome,
-                                    FrameStats* st) {
-  if (!registered_in_full(*outcome) || first_motion_base_.h_lines.empty()) return false;
-  const double reach_t = reach_translation_, reach_r = reach_rotation_;
-  reach_translation_ = config_.registration.max_translation;  // searched as a first motion is
-  reach_rotation_ = config_.registration.max_rotation_deg * kPi / 180.0;
-  FrameStats direct_stats;
-  const PassOutcome direct = first_motion(first_motion_base_, cur, RigidTransform::identity(), nullptr, &direct_stats);
-  reach_translation_ = reach_t, reach_rotation_ = reach_r;
-  st->ms.candidates += direct_stats.ms.candidates;
-  st->ms.ransac += direct_stats.ms.ransac;
-  st->iterations += direct_stats.iterations;
-  if (!registered_in_full(direct)) return false;
-  const RigidTransform chained = last_delta_ * outcome->best;
-  const RigidTransform difference = chained.inverse() * direct.best;
-  if (difference.t.norm() <= reach_translation_ && rotation_angle(difference.R) <= reach_rotation_) return false;
-  const RigidTransform half = scale_motion(direct.best, 0.5);
-  FrameStats again_stats;
-  PassOutcome again = register_features(prev_features_, cur, half, half, true, &again_stats);
-  st->ms.candidates += again_stats.ms.candidates;
-  st->ms.ransac += again_stats.ms.ransac;
-  st->iterations += again_stats.iterations;
-  if (!registered_in_full(again)) return false;
-  *outcome = again;
-  *prediction = half;
-  return true;
-}
-
 // The lines' outcome is checked on evidence they did not produce: this scan's points on the local map's planes. Each
 // of the lines' motion, the prediction and standing still starts a point fit (and, where the lines leave translations
 // unobserved, the best-supported shift along them); the fit whose points' support gains most over the lines' motion
-// (McNemar's test, support_gain) contradicts it when the gain is significant and the two are farther apart than the
-// points resolve (evidence.inlier_distance). The lines are then registered again from that fit's motion, which picks
-// the basin: their estimate from there is taken where the points agree with it; else the frame is held and flagged. The
-// points' own motion is never taken: on a sparse scan their fit can slide along a street as the lines' can.
+// (McNemar's test, support_gain) contradicts it when the gain is significant for the number of motions compared and
+// the two are farther apart than the points resolve (evidence.inlier_distance). A contradicted frame keeps its
+// motion and is flagged: on a sparse scan the points' fit can slide along a street as the lines' can, so it is no
+// motion to take instead.
 void Odometry::check_with_points(const ScanFeatures& cur, const std::vector<Vec3>& points,
                                  const RigidTransform& prediction, PassOutcome* outcome, FrameStats* st) {
   const EvidenceOptions& ev = config_.evidence;
@@ -589,23 +553,11 @@ void Odometry::check_with_points(const ScanFeatures& cur, const std::vector<Vec3
     st->evidence = "agrees";
     return;
   }
-  // The lines again, from the basin the points chose.
-  FrameStats again_stats = *st;
-  PassOutcome again = register_features(prev_features_, cur, best.T, best.T, true, &again_stats);
-  st->ms.candidates = again_stats.ms.candidates;
-  st->ms.ransac = again_stats.ms.ransac;
-  st->iterations = again_stats.iterations;
-  if (again.have && support_gain(points, best, point_support(map, points, again.best, ev)) > -threshold) {
-    *outcome = again;
-    st->evidence = "corrected";
-    return;
-  }
   char z[32];
-  std::snprintf(z, sizeof z, "%.1f", st->evidence_z);
-  outcome->have = false;
-  outcome->failure = std::string("the local map's points contradict the motion (McNemar z ") + z +
-                     " > evidence.significance), and the lines registered from the points' motion disagree with it";
-  st->evidence = "unsupported";
+  std::snprintf(z, sizeof z, "%.1f", best_gain);
+  st->evidence = "contradicted";
+  st->failure = std::string("the local map's points support another motion (McNemar z ") + z + " > " +
+                std::to_string(threshold).substr(0, 4) + ", evidence.significance for the motions compared)";
 }
 
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
@@ -738,7 +690,8 @@ Odometry::LastPassFit Odometry::refit_last_pass(CandidateIndex& index, const Sca
 bool Odometry::within_reach(const RigidTransform& prediction, const RigidTransform& T) const {
   if (!T.is_finite()) return false;
   const RigidTransform deviation = prediction.inverse() * T;
-  return deviation.t.norm() <= reach_translation_ && rotation_angle(deviation.R) <= reach_rotation_;
+  return deviation.t.norm() <= config_.registration.max_translation &&
+         rotation_angle(deviation.R) <= config_.registration.max_rotation_deg * kPi / 180.0;
 }
 
 PassOutcome Odometry::register_features(const ScanFeatures& prev, const ScanFeatures& cur,
@@ -1014,17 +967,9 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
   } else {
     const double dt = stamp - prev_stamp_;
     const bool first_motion_frame = !have_velocity_;
-    reach_translation_ = config_.registration.max_translation;
-    reach_rotation_ = config_.registration.max_rotation_deg * kPi / 180.0;
-    if (have_velocity_ && !guessed && config_.registration.constant_velocity && unmeasured_projector_.isZero() &&
-        std::isfinite(dt) && dt > 0.0) {
-      // A measured velocity changes by at most the accelerations over a frame: farther from the prediction lies an
-      // alias. (A velocity never measured along some direction predicts standing still there: no bound.)
-      reach_translation_ = std::min(reach_translation_, config_.registration.max_acceleration * dt * dt);
-      reach_rotation_ = std::min(reach_rotation_, config_.registration.max_angular_acceleration * dt * dt);
-    }
     const RigidTransform own_prediction = guessed ? *guess : predict(stamp, &st.persistence);
-    RigidTransform prediction = rotation_guessed ? with_rotation(own_prediction, *rotation_guess) : own_prediction;
+    const RigidTransform prediction =
+        rotation_guessed ? with_rotation(own_prediction, *rotation_guess) : own_prediction;
     st.prediction = guessed ? "guess"
                     : have_velocity_ && config_.registration.constant_velocity ? "constant_velocity"
                                                                                 : "standing_still";
@@ -1057,11 +1002,6 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     // (kept with a rotation guess: it starts only where the registration failed or lost support, never on the
     // yaw-flip drive with a gyro 5 deg off; a gyro turned the wrong way, 24 frames: 8.4 -> 0.23 deg mean, NODE.md)
     if (!first_motion_frame) st.turn_recovered = search_turn(prev_features_, features, prediction, &outcome, &st);
-    if (first_motion_unconfirmed_ && !guessed)
-      st.first_motion_corrected = confirm_first_motion(features, &prediction, &outcome, &st);
-    first_motion_unconfirmed_ = first_motion_frame && registered_in_full(outcome) && !guessed;
-    if (first_motion_unconfirmed_) first_motion_base_ = prev_features_;
-    else first_motion_base_ = ScanFeatures{};
     if (sweep != nullptr) st.deskewed_again = deskew_at_registered(&features, sweep, dt, prediction, &outcome, &st);
     if (config_.evidence.enabled && !local_map_.empty()) {
       stage = Stopwatch();
@@ -1081,8 +1021,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
                                                                              : reg.covariance_scale);
       const double pt = reg.motion_prior_translation_sigma, pr = reg.motion_prior_rotation_sigma_deg * kPi / 180.0;
       const Mat6 prior = motion_covariance(pt, pr);
-      // A prediction the points contradicted is no prior.
-      const bool fuse_prior = have_velocity_ && pt > 0.0 && st.evidence != "corrected";
+      const bool fuse_prior = have_velocity_ && pt > 0.0;
       const Vec6 xi = motion_difference(best, prediction);
       if (outcome.held_directions > 0) {
         // A partial estimate says nothing along the held directions (covariance zero there, refine.hpp): fused in
@@ -1160,6 +1099,10 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
       }
       st.solver = solver_name(best_stats.best_solver);
       st.registered = true;
+      if (st.evidence == "contradicted") {  // flagged, with no more confidence than a held prediction
+        st.degenerate = true;
+        result.covariance = result.covariance.cwiseMax(motion_covariance(ts, rs));
+      }
     } else {
       if (have && failure.empty()) failure = "degenerate constraints (ill-conditioned refinement)";
       result.delta = prediction;

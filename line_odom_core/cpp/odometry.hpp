@@ -36,10 +36,6 @@ struct RegistrationOptions {
   int min_inliers = 12;                 // fewer: failed, hold the prediction
   double max_translation = 5.0;         // reject estimates this far (m) from the prediction
   double max_rotation_deg = 30.0;       // ... or rotated this much from it
-  double max_acceleration = 20.0;       // m/s^2: with a velocity, estimates farther from the constant-velocity
-                                        // prediction than this acceleration moves the sensor in a frame, a dt^2, are
-                                        // rejected (a repeated structure's alias of the motion)
-  double max_angular_acceleration = 50.0;  // rad/s^2: ... or turned farther than this, alpha dt^2
   bool constant_velocity = true;        // false: predict identity
   int persistence_window = 0;           // frames: the prediction scales the last motion per axis by its measured
                                         // persistence (motion_persistence.hpp); 0: the last motion as it was
@@ -135,9 +131,6 @@ struct FrameStats {
   int unmeasured_directions = 0;  // of the velocity, never measured since the first motion was held (at standing
                                   // still): searched on the next frames
   bool recovered = false;       // this frame's motion was found by that search
-  bool first_motion_corrected = false;  // the first motion chained with this frame's contradicted the registration of
-                                        // this scan against the scan before the first motion: the velocity was taken
-                                        // from that registration instead (confirm_first_motion)
   bool turn_searched = false;   // the registration failed, held a rotation or kept under a third of the last frame's
                                 // inlier weight: the heading was scanned (search_turn)
   bool turn_recovered = false;  // ... and the motion registered from the best-supported heading replaced it
@@ -149,9 +142,9 @@ struct FrameStats {
                            // (sensor.deskew_iterations)
   bool points_refined = false;  // the point-to-plane refinement (points.weight) moved the lines' estimate
   int point_matches = 0;        // ... with this many of the scan's voxel means on a planar voxel of the previous scan
-  // The points' verdict on the lines' motion (evidence.*): "agrees", "corrected" (the points' motion replaced it),
-  // "unsupported" (contradicted, and no motion the points support instead: held), "no_map" (too few points on the
-  // map's planes to tell), "off"
+  // The points' verdict on the frame's motion (evidence.*): "agrees", "contradicted" (the points support another
+  // motion significantly more: the frame is flagged, degenerate with the fallback covariance), "no_map" (too few
+  // points on the map's planes to tell), "off"
   std::string evidence = "off";
   int evidence_matches = 0;     // this scan's checked points on a planar voxel of the local map, at the frame's motion
   int evidence_inliers = 0;     // ... within evidence.inlier_distance of it
@@ -181,6 +174,9 @@ struct PassOutcome {
   bool have_rival = false;
   RigidTransform rival;
 };
+
+// An estimate of every direction of the motion (none held at the prediction).
+bool registered_in_full(const PassOutcome& outcome);
 
 class Odometry {
  public:
@@ -332,14 +328,8 @@ class Odometry {
   bool adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                        const RigidTransform& held, const RigidTransform& start, PassOutcome* outcome,
                        FrameStats* st) const;
-  // On the frame after a first motion: registers `cur` against the scan before it from standing still; when the two
-  // frames' chained motions differ from that by more than the accelerations allow, the first motion was an alias (a
-  // repeated structure, a sweep's seam) and this frame is registered again from half the direct motion, which
-  // replaces *prediction. True when it did.
-  bool confirm_first_motion(const ScanFeatures& cur, RigidTransform* prediction, PassOutcome* outcome,
-                            FrameStats* st);
-  // The points' check of the lines' outcome (point_evidence.hpp): replaces it with the motion the local map's points
-  // support when they contradict it; `points`: this scan's checked points.
+  // The points' check of the lines' outcome (point_evidence.hpp): st->evidence "contradicted" when the local map's
+  // points support another motion significantly more; `points`: this scan's checked points.
   void check_with_points(const ScanFeatures& cur, const std::vector<Vec3>& points, const RigidTransform& prediction,
                          PassOutcome* outcome, FrameStats* st);
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
@@ -358,8 +348,6 @@ class Odometry {
   Mat6 unmeasured_projector_ = Mat6::Zero();
   double last_inlier_weight_ = 0.0;  // of the last frame when it was registered in full (search_turn), else 0
   double last_dt_ = 0.0;
-  double reach_translation_ = 0.0;  // this frame's registration.max_translation / max_rotation_deg (rad), narrowed by
-  double reach_rotation_ = 0.0;     // the accelerations while the prediction is a velocity
   double prev_stamp_ = 0.0;
   bool have_velocity_ = false;
   int frames_ = 0;
@@ -372,10 +360,6 @@ class Odometry {
   bool have_prev_sweep_ = false;
   SurfaceMap prev_surface_;  // the previous scan's surface (points.weight > 0)
   LocalMap local_map_;       // the last registered scans' points, in the previous scan's frame (evidence.*)
-  // The scan before a first motion, kept for one frame: the next scan is registered against it from standing still,
-  // and the first motion chained with the next is checked against that direct registration (confirm_first_motion).
-  ScanFeatures first_motion_base_;
-  bool first_motion_unconfirmed_ = false;
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 

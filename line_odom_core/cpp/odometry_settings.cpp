@@ -55,8 +55,6 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("registration.min_inliers", c.registration.min_inliers);
   visit("registration.max_translation", c.registration.max_translation);
   visit("registration.max_rotation_deg", c.registration.max_rotation_deg);
-  visit("registration.max_acceleration", c.registration.max_acceleration);
-  visit("registration.max_angular_acceleration", c.registration.max_angular_acceleration);
   visit("registration.constant_velocity", c.registration.constant_velocity);
   visit("registration.persistence_window", c.registration.persistence_window);
   visit("registration.max_axis_support", c.registration.max_axis_support);

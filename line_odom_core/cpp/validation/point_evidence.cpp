@@ -3,7 +3,6 @@
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
-#include <unordered_map>
 
 #include "refine.hpp"
 
@@ -15,7 +14,6 @@ PointSupport point_support(SurfaceMap& map, const std::vector<Vec3>& points, con
   out.T = T;
   out.inlier.assign(points.size(), 0);
   out.normal.assign(points.size(), Vec3::Zero());
-  out.voxel.assign(points.size(), -1);
   double squares = 0.0;
   for (std::size_t i = 0; i < points.size(); ++i) {
     const Vec3 q = T.apply(points[i]);
@@ -25,7 +23,6 @@ PointSupport point_support(SurfaceMap& map, const std::vector<Vec3>& points, con
     if (!plane.planar) continue;
     ++out.matched;
     out.normal[i] = plane.normal;
-    out.voxel[i] = voxel;
     const double r = plane.normal.dot(q - map.mean(voxel));
     if (std::abs(r) > options.inlier_distance) continue;
     ++out.inliers;
@@ -70,19 +67,17 @@ PointSupport fit_points(SurfaceMap& map, const std::vector<Vec3>& points, const 
 
 double support_gain(const std::vector<Vec3>& points, const PointSupport& a, const PointSupport& b) {
   constexpr double kFacing = 0.5;  // cos 60 deg
-  std::unordered_map<std::int32_t, int> per_voxel;
+  int only_a = 0, only_b = 0;
   const std::size_t n = std::min({points.size(), a.inlier.size(), b.inlier.size()});
   for (std::size_t i = 0; i < n; ++i) {
     if (a.inlier[i] == b.inlier[i]) continue;
     const Vec3 d = b.T.apply(points[i]) - a.T.apply(points[i]);
     const double reach = kFacing * d.norm();
     if (!(std::abs(a.normal[i].dot(d)) >= reach || std::abs(b.normal[i].dot(d)) >= reach)) continue;
-    if (b.inlier[i]) ++per_voxel[b.voxel[i]];
-    else --per_voxel[a.voxel[i]];
+    only_a += a.inlier[i];
+    only_b += b.inlier[i];
   }
-  double sum = 0.0, squares = 0.0;
-  for (const auto& [voxel, d] : per_voxel) sum += d, squares += static_cast<double>(d) * d;
-  return squares > 0.0 ? sum / std::sqrt(squares) : 0.0;
+  return only_a + only_b > 0 ? (only_b - only_a) / std::sqrt(static_cast<double>(only_a + only_b)) : 0.0;
 }
 
 }  // namespace line_odom

@@ -13,7 +13,7 @@
 namespace line_odom {
 
 struct EvidenceOptions {
-  bool enabled = true;
+  bool enabled = false;
   double voxel = 1.0;            // m: the local map's cubes
   int map_scans = 10;            // registered scans in the local map
   int map_points = 40000;        // points the map keeps, spread over its scans
@@ -36,7 +36,6 @@ struct PointSupport {
   double rms = 0.0;  // of the inliers' residuals
   std::vector<std::uint8_t> inlier;  // per point
   std::vector<Vec3> normal;          // per point: its map voxel's plane normal, 0 when unmatched
-  std::vector<std::int32_t> voxel;   // per point: its map voxel, -1 when unmatched
   Mat6 information = Mat6::Zero();   // J^T J of the inliers (x y z rx ry rz, left perturbation)
 };
 
@@ -46,12 +45,11 @@ PointSupport point_support(SurfaceMap& map, const std::vector<Vec3>& points, con
 // the start); the support at the result.
 PointSupport fit_points(SurfaceMap& map, const std::vector<Vec3>& points, const RigidTransform& start,
                         const EvidenceOptions& options);
-// McNemar's z for "b supports more of the points than a" over the points exactly one of the two supports, each +1 for b
-// and -1 for a, summed per map voxel (the voxel it is an inlier of): z = sum d_v / sqrt(sum d_v^2), the cluster-robust
-// form, since the points of one surface move together and one surface must not decide alone (0 when none). Only points
-// that can tell the two motions apart count: those whose plane (at a or at b) faces the point's displacement from a to
-// b within 60 deg; a point on a plane along its displacement keeps its residual whichever motion is right, and the
-// ground and the walls along a street would otherwise outvote the few surfaces across it.
+// McNemar's z for "b supports more of the points than a": (n_b - n_a) / sqrt(n_b + n_a) over the points exactly one
+// of the two supports (0 when none). Only points that can tell the two motions apart count: those whose plane (at a
+// or at b) faces the point's displacement from a to b within 60 deg; a point on a plane along its displacement keeps
+// its residual whichever motion is right, and the ground and the walls along a street would otherwise outvote the few
+// surfaces across it.
 double support_gain(const std::vector<Vec3>& points, const PointSupport& a, const PointSupport& b);
 
 }  // namespace line_odom
