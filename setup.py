@@ -79,6 +79,7 @@ setup(
     entry_points={
         "console_scripts": [
             "node = line_odom.node:main",
+            "lifecycle_node = line_odom.lifecycle_node:main",
             "line_odom = line_odom.cli:main",
         ],
     },

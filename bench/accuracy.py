@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Frame-to-frame accuracy of line_odom next to KISS-ICP on the same frames, in one run (issue 4).
+"""Frame-to-frame accuracy of line_odom next to KISS-ICP on the same frames, in one run.
 
     .venv/bin/python bench/accuracy.py                  # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz at 1, 1/100
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels 6
@@ -12,7 +12,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
-figures where it has them, and whether each goal of issue 4 is met; then, per row with KISS-ICP, the paired
+figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
 difference of the two methods' per-frame errors with a 95 % bootstrap interval (line_odom.metrics.paired_difference):
 whether the row's frames tell which method's mean is lower (nine pairs per KITTI row: often they do not). The "16b" rows keep every 4th of KITTI's 64
 lasers with all their azimuth steps (a real scan as a 16-beam LiDAR samples it, through the vlp16 preset); the
@@ -39,7 +39,7 @@ from line_odom.metrics import paired_difference, relative_pose_errors  # noqa: E
 KITTI_LEVELS = {1: "full", 6: "1/36", 8: "1/64"}
 TUM_LEVELS = {1: "full", 10: "1/100"}
 # s added to the depth stamps where the ground truth is read: fr1's depth images are stamped ~40 ms after the scene the
-# motion capture saw them in (both methods' rotation error is least there; docs/RESULTS.md, session 17)
+# motion capture saw them in (both methods' rotation error is least there; docs/RESULTS.md, "Accuracy")
 TUM_CLOCK_OFFSETS = (0.0, -0.02, -0.03, -0.04, -0.05, -0.06)
 # The paper's own mean RPE (m, deg): KITTI 07 at full resolution, TUM fr1/xyz at 1/100 (Tables 1, 4; Fig. 1).
 PAPER = {("kitti", "07", 1): (0.0176, 0.0838), ("tum", "fr1/xyz", 10): (0.00505, 0.52)}

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Is the reported covariance consistent with the real errors? NEES of every frame's motion (issue 4).
+"""Is the reported covariance consistent with the real errors? NEES of every frame's motion.
 
     .venv/bin/python bench/covariance.py                # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz 1, 1/100; sim
     .venv/bin/python bench/covariance.py --only tum --set registration.covariance_scale=1

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The first motion after a fresh start, at every frame pair, next to KISS-ICP's (issue 4).
+"""The first motion after a fresh start, at every frame pair, next to KISS-ICP's.
 
     .venv/bin/python bench/first_motion.py                    # KITTI 00/04/07 at 1, 1/36, 1/64
     .venv/bin/python bench/first_motion.py --kitti 04 --levels 1

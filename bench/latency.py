@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Per-frame latency of line_odom, stage by stage, next to KISS-ICP's on the same frames in one run (issue 4).
+"""Per-frame latency of line_odom, stage by stage, next to KISS-ICP's on the same frames in one run.
 
     .venv/bin/python bench/latency.py                   # KITTI 00/04/07 at 1, 1/36, 1/64; TUM fr1/xyz (300 frames) at 1, 1/100
     .venv/bin/python bench/latency.py --repeat 3 --kiss-threads 1

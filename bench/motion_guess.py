@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Registration from a motion guess (a wheel odometry) next to the constant-velocity prediction and KISS-ICP (issue 4).
+"""Registration from a motion guess (a wheel odometry) next to the constant-velocity prediction and KISS-ICP.
 
     .venv/bin/python bench/motion_guess.py                        # KITTI 04/07 at 1, 1/36, 1/64; starts 0 and 2
     .venv/bin/python bench/motion_guess.py --scale 1.05 --yaw-noise 0.2 --starts 0 2 5 --no-kiss

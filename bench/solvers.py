@@ -1,4 +1,4 @@
-"""Solver benchmark (issue 3, DESIGN.md §6): C++ timing loop over seeded noise-free instances, no Python per call.
+"""Solver benchmark (docs/DESIGN.md §6): C++ timing loop over seeded noise-free instances, no Python per call.
 
 Prints per solver: median and 90th percentile µs per call (each pass over the instances is timed in chunks of
 consecutive calls, tens of µs long, so that most chunks run unpreempted on a loaded machine; every chunk is one

@@ -7,6 +7,7 @@
         (my_robot.yaml with guess: enabled: true - docs/NODE.md, "Motion guess")
     ros2 launch line_odom line_odom.launch.py params_file:=my_robot.yaml imu:=/imu/data
         (my_robot.yaml with imu: enabled: true - docs/NODE.md, "IMU rotation guess")
+    ros2 launch line_odom line_odom.launch.py lifecycle:=true   (the managed node, for a lifecycle manager)
 
 The node also gets the shipped Fast DDS large-message profile (config/fastdds_large_messages.xml) unless
 fastdds_profile:=<other file> is given; export the same profile for the driver (see docs/NODE.md).
@@ -55,11 +56,18 @@ def generate_launch_description():
         DeclareLaunchArgument("path", default_value="path", description="Path output topic"),
         DeclareLaunchArgument("fastdds_profile", default_value=_share("config", "fastdds_large_messages.xml"),
                               description="Fast DDS XML profile for the node (large clouds on one host)"),
+        DeclareLaunchArgument("initialpose", default_value="/initialpose",
+                              description="geometry_msgs/PoseWithCovarianceStamped (rviz's 2D Pose Estimate) resetting "
+                                          "the odometry to a pose in odom_frame"),
+        DeclareLaunchArgument("lifecycle", default_value="false",
+                              description="start the managed node (lifecycle_node: configure/activate through "
+                                          "lifecycle_msgs, e.g. by Nav2's lifecycle manager)"),
         DeclareLaunchArgument("rviz", default_value="false", description="start rviz2 with rviz/line_odom.rviz"),
     ]
     node = Node(
         package="line_odom",
-        executable="node",
+        executable=PythonExpression(["'lifecycle_node' if '", LaunchConfiguration("lifecycle"),
+                                     "'.lower() == 'true' else 'node'"]),
         name="line_odom",
         namespace=LaunchConfiguration("namespace"),
         output="screen",
@@ -77,6 +85,7 @@ def generate_launch_description():
             ("imu", LaunchConfiguration("imu")),
             ("odom", LaunchConfiguration("odom")),
             ("path", LaunchConfiguration("path")),
+            ("initialpose", LaunchConfiguration("initialpose")),
         ],
         additional_env={"FASTDDS_DEFAULT_PROFILES_FILE": profile, "FASTRTPS_DEFAULT_PROFILES_FILE": profile},
     )

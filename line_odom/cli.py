@@ -1,4 +1,4 @@
-"""The `line_odom` command line: kitti2bag, tum2bag, replay, eval, demo.
+"""The `line_odom` command line: kitti2bag, tum2bag, replay, eval, demo, batch.
 
 Every failure is one line on stderr (``line_odom: error: ...``) and a non-zero return code, never a traceback.
 """
@@ -31,6 +31,12 @@ def _add_bag_output_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _replay_formats() -> tuple[str, ...]:
+    from line_odom.readers import FORMATS
+
+    return FORMATS
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="line_odom",
@@ -53,10 +59,22 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "(default: from the directory name, else fr1)")
     _add_bag_output_args(p)
 
-    p = sub.add_parser("replay", help="run a bag through the odometry node and evaluate it")
-    p.add_argument("bag", metavar="BAG", help="input rosbag2 (sqlite3 or mcap)")
+    p = sub.add_parser("replay", help="run a recording (bag, pcap, osf, dataset folder, scans) through the odometry "
+                                      "node and evaluate it")
+    p.add_argument("bag", metavar="PATH", help="a rosbag2 (sqlite3 or mcap), ROS 1 .bag, Velodyne or Ouster .pcap, "
+                                               "Ouster .osf, KITTI odometry / raw folder, TUM RGB-D folder or "
+                                               "folder of .bin / .pcd / .ply scans (docs/TOOLS.md)")
+    p.add_argument("--format", default=None, choices=_replay_formats(),
+                   help="the recording's format (default: guessed from PATH)")
+    p.add_argument("--meta", metavar="JSON", default=None,
+                   help="an Ouster pcap's sensor metadata (default: the json beside it whose name starts the pcap's)")
+    p.add_argument("--ground-truth", metavar="FILE", default=None, dest="ground_truth",
+                   help="a TUM or KITTI trajectory file (KITTI: one pose a frame) instead of the recording's own")
+    p.add_argument("--plot-features", metavar="N", type=int, nargs="?", const=0, default=None, dest="plot_features",
+                   help="also draw frame N's points and fitted H/V lines, top view, to DIR/features.png (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory for trajectories, metrics and plot")
-    p.add_argument("--params", metavar="YAML", default=None, help="ROS 2 parameter file for the node")
+    p.add_argument("--params", metavar="YAML", default=None, help="ROS 2 parameter file (or preset name) for the node "
+                                                              "(default: the preset the recording suggests)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
                    help="override one parameter (engine or node), e.g. --set downsample=6; repeatable")
     p.add_argument("--realtime", action="store_true",
@@ -75,6 +93,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a sensor_msgs/Imu topic of the bag whose gyro rates turn the node's prediction "
                         "(imu.enabled)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no table")
+
+    p = sub.add_parser("batch", help="replay every recording of a folder or manifest (local processes or a Dask "
+                                     "cluster) and summarize the metrics")
+    p.add_argument("inputs", metavar="INPUTS", help="a folder (every recording replay reads, searched recursively) "
+                                                    "or a manifest (.yaml/.csv: path, label, params, set)")
+    p.add_argument("--out", required=True, metavar="DIR", help="outputs: DIR/<label>/ per recording, DIR/summary.*")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                       help="local worker processes (default: the cores)")
+    where.add_argument("--cluster", default=None, metavar="ADDRESS",
+                       help="run on this existing Dask scheduler (tcp://host:8786, or its scheduler file .json)")
+    p.add_argument("--params", metavar="YAML", default=None, help="parameter file for recordings without their own")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
+                   help="override one parameter for every recording (a manifest entry's own set wins); repeatable")
+    p.add_argument("--frames", type=_positive_int, default=None, metavar="N",
+                   help="replay only the first N frames of each")
+    p.add_argument("--force", action="store_true", help="replay recordings whose outputs are complete too")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
 
     p = sub.add_parser("eval", help="metrics of an estimated trajectory against ground truth (TUM or KITTI files)")
     p.add_argument("est", metavar="EST", help="estimated trajectory (TUM: t x y z qx qy qz qw, or KITTI: 12 numbers)")
@@ -159,14 +195,34 @@ def parse_overrides(items: list[str]) -> dict:
 def cmd_replay(args) -> int:
     from line_odom import evaluation, replay
 
-    result = replay.replay_bag(args.bag, args.out, params=args.params, overrides=parse_overrides(args.overrides),
-                               realtime=args.realtime, rate=args.rate,
-                               out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
-                               frames=args.frames, progress=not args.quiet, guess_topic=args.guess_topic,
-                               imu_topic=args.imu_topic)
+    result = replay.replay(args.bag, args.out, format=args.format, meta=args.meta, ground_truth=args.ground_truth,
+                           plot_features=args.plot_features, params=args.params,
+                           overrides=parse_overrides(args.overrides), realtime=args.realtime, rate=args.rate,
+                           out_bag=args.out_bag, out_bag_storage=args.storage, topic=args.topic,
+                           frames=args.frames, progress=not args.quiet, guess_topic=args.guess_topic,
+                           imu_topic=args.imu_topic)
     if not args.quiet:
+        info = result.input
+        print(f"input: {info.get('format')}, preset {info.get('preset')} ({info.get('sensor')}); ground truth: "
+              f"{info.get('ground_truth') or 'none'}" + "".join(f"; {note}" for note in info.get("notes", [])))
         print(evaluation.format_table(result.metrics, f"replay {args.bag}"))
         print(f"wrote {', '.join(str(p) for p in result.files)}")
+    return 0
+
+
+def cmd_batch(args) -> int:
+    from line_odom import batch
+
+    result = batch.run_batch(args.inputs, args.out, workers=args.workers, cluster=args.cluster, params=args.params,
+                             overrides=parse_overrides(args.overrides), frames=args.frames, force=args.force,
+                             progress=not args.quiet)
+    counts = {s: sum(r["status"] == s for r in result.rows) for s in ("ok", "skipped", "failed")}
+    if not args.quiet:
+        print(f"{len(result.rows)} recordings: {counts['ok']} replayed, {counts['skipped']} skipped (complete), "
+              f"{counts['failed']} failed; wrote {', '.join(str(p) for p in result.files)}")
+    if result.failed:
+        raise RuntimeError(f"{len(result.failed)} of {len(result.rows)} recordings failed "
+                           f"({', '.join(r['label'] for r in result.failed)}; errors in {result.files[1]})")
     return 0
 
 
@@ -178,7 +234,7 @@ def cmd_demo(args) -> int:
 
 
 COMMANDS = {"kitti2bag": cmd_kitti2bag, "tum2bag": cmd_tum2bag, "replay": cmd_replay, "eval": cmd_eval,
-            "demo": cmd_demo}
+            "demo": cmd_demo, "batch": cmd_batch}
 
 
 def main(argv: list[str] | None = None) -> int:

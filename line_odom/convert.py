@@ -66,6 +66,18 @@ class CameraInfoError(ConversionError):
         super().__init__("CameraInfo", field, reason)
 
 
+class TooLargeError(ConversionError):
+    """A well-formed message larger than the configured limit (max_points, max_pixels)."""
+
+
+class CloudTooLargeError(PointCloudError, TooLargeError):
+    pass
+
+
+class ImageTooLargeError(ImageError, TooLargeError):
+    pass
+
+
 # ---------------------------------------------------------------------------------------------- stamps
 
 
@@ -76,6 +88,27 @@ def stamp_to_sec(stamp) -> float:
 
 def stamp_to_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def header_stamp_ns(stamp, message_type: str) -> int:
+    """A received message's header.stamp as integer nanoseconds; ConversionError naming the field for a stamp no
+    clock gives: before the epoch (ROS time is never negative) or nanosec >= 1e9 (not normalised; REP and
+    builtin_interfaces/Time keep it below one second)."""
+    sec, nanosec = _as_stamp_int(stamp, "sec", message_type), _as_stamp_int(stamp, "nanosec", message_type)
+    if sec < 0:
+        raise ConversionError(message_type, "header.stamp.sec", f"expected >= 0 (ROS time is never negative), "
+                                                                 f"got {sec}")
+    if not 0 <= nanosec < 1_000_000_000:
+        raise ConversionError(message_type, "header.stamp.nanosec", f"expected 0 <= nanosec < 1000000000, "
+                                                                     f"got {nanosec}")
+    return sec * 1_000_000_000 + nanosec
+
+
+def _as_stamp_int(stamp, name: str, message_type: str) -> int:
+    value = getattr(stamp, name, None)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ConversionError(message_type, f"header.stamp.{name}", f"expected an integer, got {value!r}")
+    return int(value)
 
 
 def ns_to_stamp(ns: int):
@@ -135,6 +168,7 @@ def pointcloud2_dtype(fields, point_step: int, is_bigendian: bool = False) -> np
         raise PointCloudError("point_step", f"{point_step} bytes per point exceeds {MAX_POINT_STEP} (numpy's limit)")
     order = ">" if is_bigendian else "<"
     names, formats, offsets = [], [], []
+    spans: dict[str, tuple[int, int]] = {}  # each field's bytes [start, end) within a point
     for i, f in enumerate(fields):
         name = str(f.name)
         if not name:
@@ -155,6 +189,11 @@ def pointcloud2_dtype(fields, point_step: int, is_bigendian: bool = False) -> np
                 "point_step",
                 f"{point_step} bytes is too small for field {name!r} (offset {offset} + {size} bytes = {offset + size})",
             )
+        for other, (start, end) in spans.items():
+            if offset < end and start < offset + size:
+                raise PointCloudError(f"fields[{name}].offset", f"bytes {offset}..{offset + size - 1} overlap field "
+                                                               f"{other!r} at bytes {start}..{end - 1}")
+        spans[name] = (offset, offset + size)
         names.append(name)
         formats.append(scalar if count == 1 else np.dtype((scalar, (count,))))
         offsets.append(offset)
@@ -291,9 +330,9 @@ def pointcloud2_to_arrays(msg, *, max_points: int = 0, organized: bool | None = 
     than ``max_points`` points (0 = no limit)."""
     points = read_points(msg)
     if max_points and points.size > max_points:
-        raise PointCloudError(
-            "width", f"{points.size} points exceed the max_points limit of {max_points} ({msg.width} x {msg.height})"
-        )
+        raise CloudTooLargeError(
+            "width",
+            f"{points.size} points exceed the max_points limit of {max_points} ({msg.width} x {msg.height})")
     if organized is None:
         organized = points.shape[0] > 1
     xyz = _xyz_view(points)
@@ -399,17 +438,26 @@ def pointcloud2_from_xyz(
 # ---------------------------------------------------------------------------------------------- Image
 
 
-def image_to_depth(msg) -> np.ndarray:
+def image_dimension(msg, name: str) -> int:
+    """An Image's height or width, checked (ImageError naming it)."""
+    return _as_int(getattr(msg, name), name, ImageError)
+
+
+def image_to_depth(msg, *, max_pixels: int = 0) -> np.ndarray:
     """Depth Image (16UC1/mono16 millimetres, 32FC1 metres) -> (H, W) float32 metres, 0 where there is no
-    measurement (0, NaN, inf, negative). Raises ImageError for malformed images or an image without depth."""
+    measurement (0, NaN, inf, negative). Raises ImageError for malformed images or an image without depth,
+    TooLargeError for more than ``max_pixels`` pixels (0 = no limit) before touching a pixel."""
     encoding = str(msg.encoding)
     if encoding not in DEPTH_ENCODINGS:
         raise ImageError("encoding", f"unsupported depth encoding {encoding!r} (expected one of {sorted(DEPTH_ENCODINGS)})")
     scalar, scale = DEPTH_ENCODINGS[encoding]
-    height = _as_int(msg.height, "height", ImageError)
-    width = _as_int(msg.width, "width", ImageError)
+    height = image_dimension(msg, "height")
+    width = image_dimension(msg, "width")
     if height == 0 or width == 0:
         raise ImageError("width" if width == 0 else "height", f"empty image ({width} x {height})")
+    if max_pixels and width * height > max_pixels:
+        raise ImageTooLargeError("width", f"{width} x {height} = {width * height} pixels exceed the max_pixels "
+                                              f"limit of {max_pixels}")
     dtype = np.dtype(scalar).newbyteorder(">" if msg.is_bigendian else "<")
     step = _as_int(msg.step, "step", ImageError)
     if step < width * dtype.itemsize:

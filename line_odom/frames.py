@@ -1,12 +1,11 @@
 """Rigid-transform helpers for publishing odometry (REP-103/105): pose parameters, SE(3) adjoint and log,
 and the covariance bookkeeping between the sensor's frame-to-frame estimate and the base's odometry.
 
-Conventions (DESIGN.md §3): ``T_ab`` maps frame-b coordinates into frame a; 6-vectors and 6x6 covariances
+Conventions (docs/DESIGN.md §3): ``T_ab`` maps frame-b coordinates into frame a; 6-vectors and 6x6 covariances
 are ordered (x y z rx ry rz) = (rho, phi); a "left" perturbation is ``T = exp(xi) T_hat``.
 """
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
@@ -14,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 # Eigen's: scipy's Rotation costs ~0.2 ms a call on the per-frame path. quaternion_xyzw gives [x, y, z, w], w >= 0.
 from line_odom_core._core import quaternion_xyzw, rotation_vector  # noqa: F401
+from line_odom_core.odometry import log_se3  # noqa: F401  (one definition of the twist: line_odom_core.odometry)
 
 
 def pose_from_params(values: Sequence[float], name: str) -> np.ndarray:
@@ -64,20 +64,6 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     Ad[:3, 3:] = skew(t) @ R
     Ad[3:, 3:] = R
     return Ad
-
-
-def log_se3(T: np.ndarray) -> np.ndarray:
-    """xi = (rho, phi) with exp(xi) = T (the constant body twist that moves by T in unit time)."""
-    phi = rotation_vector(T[:3, :3])
-    theta = float(np.linalg.norm(phi))
-    W = skew(phi)
-    if theta < 1e-6:
-        V_inv = np.eye(3) - 0.5 * W + W @ W / 12.0
-    else:
-        half = 0.5 * theta
-        coeff = (1.0 - half * math.cos(half) / math.sin(half)) / (theta * theta)
-        V_inv = np.eye(3) - 0.5 * W + coeff * (W @ W)
-    return np.concatenate([V_inv @ T[:3, 3], phi])
 
 
 def ad(xi: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ def gyro_sample(msg) -> tuple[int, str, np.ndarray]:
     rate = np.array([w.x, w.y, w.z], dtype=float)
     if not np.isfinite(rate).all():
         raise ImuError("angular_velocity", f"expected finite rates (rad/s), got {rate.tolist()}")
-    return convert.stamp_to_ns(msg.header.stamp), str(msg.header.frame_id).lstrip("/"), rate
+    return convert.header_stamp_ns(msg.header.stamp, "Imu"), str(msg.header.frame_id).lstrip("/"), rate
 
 
 class GyroRotation:

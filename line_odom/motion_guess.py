@@ -12,7 +12,7 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from line_odom import bags, convert
+from line_odom import convert
 from line_odom_core._core import rotation_vector
 
 
@@ -44,7 +44,10 @@ def odometry_pose(msg, base_frame: str) -> tuple[int, np.ndarray]:
     norm = float(np.linalg.norm(quat))
     if not math.isfinite(norm) or abs(norm - 1.0) > 1e-3:
         raise GuessError("pose.pose.orientation", f"expected a unit quaternion, got {quat.tolist()} (norm {norm:g})")
-    return convert.stamp_to_ns(msg.header.stamp), bags.odometry_to_pose(msg)[1]
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(quat).as_matrix()
+    T[:3, 3] = position
+    return convert.header_stamp_ns(msg.header.stamp, "Odometry"), T
 
 
 class MotionGuess:

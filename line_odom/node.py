@@ -1,36 +1,38 @@
-"""rclpy node: ``ros2 run line_odom node`` (or ``python -m line_odom.node``).
+"""rclpy node: ``ros2 run line_odom node`` (or ``python -m line_odom.node``); the managed variant is
+line_odom.lifecycle_node.
 
-Subscribes ``points`` (PointCloud2) or ``depth/image`` + ``depth/camera_info``; publishes ``odom``
-(nav_msgs/Odometry), ``path`` (nav_msgs/Path), ``/tf`` (tf2_msgs/TFMessage) and ``/diagnostics``; serves
-``~/reset`` (std_srvs/Trigger). Frames are processed on a worker thread (the engine releases the GIL): the
-subscription callback only stores the newest message, so when processing falls behind the newest frame wins
-and the replaced ones are counted as dropped. The work itself is line_odom.processor.OdometryProcessor.
+Subscribes ``points`` (PointCloud2) or ``depth/image`` + ``depth/camera_info``, and ``initialpose``; publishes ``odom``
+(nav_msgs/Odometry), ``path`` (nav_msgs/Path), ``/tf`` (tf2_msgs/TFMessage), ``/diagnostics`` and, while subscribed,
+``~/scan`` (the registered scan, PointCloud2); serves ``~/reset``
+(std_srvs/Trigger). A frame goes: subscription callback -> LatestSlot (the newest message wins; a replaced one is
+counted as dropped) -> the worker thread -> OdometryProcessor (convert, fuse, register, base pose, messages; the
+engine releases the GIL) -> publish.
 """
 from __future__ import annotations
 
 import sys
 import threading
 import time
-import traceback
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks, UnsupportedEventTypeError
 from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy, qos_profile_sensor_data
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 from std_srvs.srv import Trigger
 
-from line_odom.processor import NODE_PARAMETERS, NodeSettings, OdometryProcessor
-from line_odom_core.config import CHOICES, config_schema, load_config
-
-NODE_NAME = "line_odom"
-INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+from line_odom.node_startup import EXIT_BAD_PARAMETER, NODE_NAME, run  # noqa: F401
+from line_odom.processor import OdometryProcessor
+from line_odom.ros_parameters import ParameterMixin, ParameterSetupError  # noqa: F401
+# Requests a service holds before answering: a burst of callers (a launch file resetting several nodes, a test rig)
+# beyond the default depth of 10 would lose requests. Every caller gets its answer up to this many at once.
+SERVICE_QUEUE_DEPTH = 100
 
 
 class LatestSlot:
@@ -66,6 +68,7 @@ class LatestSlot:
     def close(self) -> None:
         with self._cond:
             self._closed = True
+            self._item = None
             self._cond.notify_all()
 
     @property
@@ -73,42 +76,27 @@ class LatestSlot:
         return self._closed
 
 
-def _descriptor(name: str, ptype: int, description: str, lo=None, hi=None, constraints: str = "",
-                integer: bool = False) -> ParameterDescriptor:
-    d = ParameterDescriptor(name=name, type=ptype, description=description, read_only=True,
-                            additional_constraints=constraints)
-    if lo is not None or hi is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo if lo is not None else INT64_MIN),
-                                            to_value=int(hi if hi is not None else INT64_MAX), step=0)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo if lo is not None else -1e308),
-                                                         to_value=float(hi if hi is not None else 1e308),
-                                                         step=0.0)]
-    return d
+class OdometryNodeBase(ParameterMixin):
+    """What the plain and the managed node share, on top of an rclpy Node: parameters (declared once, read-only
+    afterwards), and the interfaces of a running odometry (started by ``start_odometry``, torn down by
+    ``stop_odometry``)."""
 
+    processor: OdometryProcessor | None = None
+    _worker: threading.Thread | None = None
 
-_PTYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-           float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
-           list: ParameterType.PARAMETER_DOUBLE_ARRAY}
-
-
-class ParameterSetupError(ValueError):
-    """A parameter has a bad value or type; the message names it and says what is expected."""
-
-
-class LineOdomNode(Node):
-    def __init__(self, **kwargs):
-        super().__init__(NODE_NAME, **kwargs)
-        self._declare_and_load()
-        s = self.settings
+    # ------------------------------------------------------------------ running
+    def make_processor(self) -> OdometryProcessor:
         try:
-            self.processor = OdometryProcessor(self.config, s, logger=self.get_logger())
+            processor = OdometryProcessor(self.config, self.settings, logger=self.get_logger())
         except ValueError as err:  # the engine rejected a setting
             raise ParameterSetupError(f"the engine rejected the settings: {err}") from None
-        self.processor.diagnostic_name = f"{self.get_fully_qualified_name()}: odometry"
-        self._log_parameters()
+        processor.diagnostic_name = f"{self.get_fully_qualified_name()}: odometry"
+        return processor
 
+    def start_odometry(self, publisher_factory=None) -> list[str]:
+        """Creates the publishers, subscriptions, service and timer, starts the worker; returns what it subscribed."""
+        s = self.settings
+        create_pub = publisher_factory or self.create_publisher
         if s.qos_reliable:
             input_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=s.qos_depth,
                                    reliability=ReliabilityPolicy.RELIABLE)
@@ -116,36 +104,42 @@ class LineOdomNode(Node):
             input_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=s.qos_depth,
                                    reliability=qos_profile_sensor_data.reliability,
                                    durability=qos_profile_sensor_data.durability)
-        self.pub_odom = self.create_publisher(Odometry, "odom", 10)
-        self.pub_path = self.create_publisher(Path, "path", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                                                       durability=DurabilityPolicy.VOLATILE))
+        self._entities = []
+        self.pub_odom = create_pub(Odometry, "odom", 10)
+        self.pub_path = create_pub(Path, "path", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                                            durability=DurabilityPolicy.VOLATILE))
         self.pub_tf = None
         if s.publish_tf:
             from tf2_msgs.msg import TFMessage
 
-            self.pub_tf = self.create_publisher(TFMessage, "/tf", 100)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+            self.pub_tf = create_pub(TFMessage, "/tf", 100)
+        self.pub_diag = create_pub(DiagnosticArray, "/diagnostics", 10)
+        self.pub_scan = create_pub(PointCloud2, "~/scan", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+        self._publishers_made = [p for p in (self.pub_odom, self.pub_path, self.pub_tf, self.pub_diag, self.pub_scan)
+                                 if p]
 
         self._slot = LatestSlot()
         self._camera_info_event = threading.Event()
+        subscribe = self._subscribe
+        processor = self.processor
         if s.input == "pointcloud":
-            self.create_subscription(PointCloud2, "points", self._on_message, input_qos)
+            self._subscribe_input(PointCloud2, "points", self._on_message, input_qos)
             inputs = [self.resolve_topic_name("points")]
         else:
-            self.create_subscription(Image, "depth/image", self._on_message, input_qos)
-            self.create_subscription(CameraInfo, "depth/camera_info", self._on_camera_info, input_qos)
+            self._subscribe_input(Image, "depth/image", self._on_message, input_qos)
+            self._subscribe_input(CameraInfo, "depth/camera_info", self._on_camera_info, input_qos)
             inputs = [self.resolve_topic_name("depth/image"), self.resolve_topic_name("depth/camera_info")]
         if s.guess_enabled:
             # best effort matches reliable and best-effort publishers; a lost pose only widens an interpolation
             guess_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
                                    reliability=qos_profile_sensor_data.reliability)
-            self.create_subscription(Odometry, "guess_odom", self.processor.add_guess, guess_qos)
+            subscribe(Odometry, "guess_odom", processor.add_guess, guess_qos)
             inputs.append(self.resolve_topic_name("guess_odom") + " (motion guess)")
         if s.imu_enabled:
             # 100-400 Hz: a deep best-effort queue, so a registration holding the GIL briefly loses no sample
             imu_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=400,
                                  reliability=qos_profile_sensor_data.reliability)
-            self.create_subscription(Imu, "imu", self.processor.add_imu, imu_qos)
+            subscribe(Imu, "imu", processor.add_imu, imu_qos)
             inputs.append(self.resolve_topic_name("imu") + " (gyro rotation guess)")
         if s.base_to_sensor_from_tf:
             from tf2_msgs.msg import TFMessage
@@ -153,97 +147,64 @@ class LineOdomNode(Node):
             # as tf2's static listener: reliable and transient local, so transforms latched before the start arrive
             static_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-            self.create_subscription(TFMessage, "/tf_static", self.processor.add_static_tf, static_qos)
+            subscribe(TFMessage, "/tf_static", processor.add_static_tf, static_qos)
             inputs.append(f"/tf_static ({s.base_frame} -> the input's frame)")
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_timer(s.diagnostics_period, self._publish_diagnostics)
+        # rviz's 2D Pose Estimate (reliable, like Nav2's initial pose publishers)
+        subscribe(PoseWithCovarianceStamped, "initialpose", processor.set_initial_pose,
+                  QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        services = MutuallyExclusiveCallbackGroup()  # a service call never waits behind a subscription's callback
+        self._entities.append(self.create_service(
+            Trigger, "~/reset", self._on_reset, qos_profile=QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=SERVICE_QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.VOLATILE), callback_group=services))
+        # the steady clock: under use_sim_time the ROS clock stands still until /clock ticks, and diagnostics must go on
+        self._entities.append(self.create_timer(s.diagnostics_period, self._publish_diagnostics,
+                                                clock=Clock(clock_type=ClockType.STEADY_TIME)))
         self._last_path_stamp: float | None = None
         self._worker = threading.Thread(target=self._work, name="line_odom_worker", daemon=True)
         self._worker.start()
+        return inputs
+
+    def _subscribe(self, msg_type, topic, callback, qos):
+        self._entities.append(self.create_subscription(msg_type, topic, callback, qos))
+
+    def _subscribe_input(self, msg_type, topic, callback, qos):
+        """A sensor input, with DDS's reports of messages lost on the way counted (frames_lost_in_transport)."""
+        name = self.resolve_topic_name(topic)
+        events = SubscriptionEventCallbacks(
+            message_lost=lambda info: self.processor.note_lost(int(info.total_count_change), name))
+        try:
+            self._entities.append(self.create_subscription(msg_type, topic, callback, qos, event_callbacks=events))
+        except UnsupportedEventTypeError:  # an RMW that does not report lost messages: they stay uncounted
+            self._subscribe(msg_type, topic, callback, qos)
+
+    def log_ready(self, inputs: list[str]) -> None:
+        s = self.settings
         self.get_logger().info(
             f"line_odom ready: input {s.input} on {', '.join(inputs)} "
             f"({'reliable' if s.qos_reliable else 'best effort (SensorDataQoS)'}), publishing "
             f"{self.resolve_topic_name('odom')}, {self.resolve_topic_name('path')}"
             f"{', /tf' if s.publish_tf else ''}, /diagnostics; {s.odom_frame} -> {s.base_frame}")
 
-    # ------------------------------------------------------------------ parameters
-    def _coerce_overrides(self, names_types: dict[str, type]) -> None:
-        """ROS parameter files often write 2 for 2.0 (and [0, 0, 0] for doubles); accept those for double
-        parameters instead of failing on the type."""
-        overrides = getattr(self, "_parameter_overrides", None)
-        if not isinstance(overrides, dict):
-            return
-        for name, want in names_types.items():
-            p = overrides.get(name)
-            if p is None:
-                continue
-            if want is float and p.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
-            elif want is list and p.type_ == Parameter.Type.INTEGER_ARRAY:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in p.value])
-
-    def _declare(self, name, default, ptype, descriptor):
-        try:
-            return self.declare_parameter(name, default, descriptor).value
-        except Exception as err:  # rclpy raises several exception types for bad overrides
-            raise ParameterSetupError(f"parameter {name!r}: {err}") from None
-
-    def _declare_and_load(self) -> None:
-        preset = self._declare("preset", "kitti_hdl64", ParameterType.PARAMETER_STRING, _descriptor(
-            "preset", ParameterType.PARAMETER_STRING,
-            "engine + node defaults: a preset name (kitti_hdl64, tum_kinect, vlp16, ouster_os128) or a ROS 2 "
-            "parameter YAML path; individual parameters override it"))
-        try:
-            base = load_config(preset)
-        except (ValueError, FileNotFoundError, OSError) as err:
-            raise ParameterSetupError(f"parameter 'preset': {err}") from None
-        try:
-            preset_node = NodeSettings.from_mapping(base.extra, strict=False).as_dict()
-        except ValueError as err:
-            raise ParameterSetupError(f"preset {base.source}: {err}") from None
-        unknown = sorted(k for k in base.extra if k not in preset_node and k not in ("use_sim_time", "preset"))
-        if unknown:
-            self.get_logger().warning(f"preset {base.source}: ignoring unknown keys {unknown}")
-
-        schema = config_schema()
-        self._coerce_overrides({**{e.name: e.type for e in schema}, **{p.name: p.type for p in NODE_PARAMETERS}})
-
-        node_values = {}
-        for p in NODE_PARAMETERS:
-            ptype = _PTYPES[p.type]
-            constraints = ("one of " + ", ".join(p.choices)) if p.choices else ""
-            desc = _descriptor(p.name, ptype, p.description, p.min, p.max, constraints, integer=p.type is int)
-            default = preset_node[p.name]
-            node_values[p.name] = self._declare(p.name, [float(v) for v in default] if p.type is list else default,
-                                                ptype, desc)
-        try:
-            self.settings = NodeSettings.from_mapping(node_values)
-        except ValueError as err:
-            raise ParameterSetupError(str(err)) from None
-
-        engine_values = {}
-        for e in schema:
-            ptype = _PTYPES[e.type]
-            constraints = ("one of " + ", ".join(CHOICES[e.name])) if e.name in CHOICES else ""
-            desc = _descriptor(e.name, ptype, e.description, e.min, e.max, constraints, integer=e.type is int)
-            engine_values[e.name] = self._declare(e.name, base[e.name], ptype, desc)
-        try:
-            self.config = load_config(preset, engine_values)
-        except ValueError as err:
-            raise ParameterSetupError(str(err)) from None
-
-        declared = {"preset", "use_sim_time"} | set(node_values) | set(engine_values)
-        overrides = getattr(self, "_parameter_overrides", {}) or {}
-        stray = sorted(n for n in overrides if n not in declared and not n.startswith("qos_overrides."))
-        if stray:
-            self.get_logger().warning(f"ignoring unknown parameters {stray} (typo?)")
-
-    def _log_parameters(self) -> None:
-        lines = [f"  preset = {self.config.source}"]
-        lines += [f"  {k} = {v}" for k, v in self.settings.as_dict().items()]
-        lines += [f"  {k} = {v}" for k, v in self.config.as_dict().items()]
-        lines.append(f"  use_sim_time = {self.get_parameter('use_sim_time').value}")
-        self.get_logger().info("parameters:\n" + "\n".join(lines))
+    def stop_odometry(self, destroy_publisher=None) -> None:
+        """Stops the worker and destroys what start_odometry created."""
+        slot = getattr(self, "_slot", None)
+        if slot is not None:
+            slot.close()
+            self._camera_info_event.set()
+        if self._worker is not None and self._worker.is_alive():
+            self._worker.join(timeout=5.0)
+        self._worker = None
+        for entity in getattr(self, "_entities", []):
+            kind = type(entity).__name__
+            destroy = {"Subscription": self.destroy_subscription, "Service": self.destroy_service,
+                       "Timer": self.destroy_timer}.get(kind)
+            if destroy is not None:
+                destroy(entity)
+        self._entities = []
+        for pub in getattr(self, "_publishers_made", []):
+            (destroy_publisher or self.destroy_publisher)(pub)
+        self._publishers_made = []
 
     # ------------------------------------------------------------------ callbacks
     def _on_message(self, msg) -> None:
@@ -267,85 +228,70 @@ class LineOdomNode(Node):
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
         depth = self.settings.input == "depth"
-        while not self._slot.closed:
-            item = self._slot.take(timeout=0.2)
+        slot, processor = self._slot, self.processor
+        while not slot.closed:
+            item = slot.take(timeout=0.2)
             if item is None:
                 continue
             msg, received = item
             try:
+                processor.scan_wanted = self.pub_scan.get_subscription_count() > 0
                 if depth:
-                    if not self.processor.has_camera_info:
+                    if not processor.has_camera_info:
                         # hold a valid image until its CameraInfo arrives (unless a newer image replaces it)
-                        if not self.processor.check_depth_image(msg):
+                        if not processor.check_depth_image(msg):
                             continue
-                        if not self._slot.put_back(item):
-                            self.processor.note_dropped()
+                        if not slot.put_back(item):
+                            processor.note_dropped()
                         self._camera_info_event.wait(0.2)
                         continue
-                    out = self.processor.process_depth(msg, receive_time=received)
+                    out = processor.process_depth(msg, receive_time=received)
                 else:
-                    out = self.processor.process_pointcloud(msg, receive_time=received)
+                    out = processor.process_pointcloud(msg, receive_time=received)
+                del msg, item  # a large message is freed now, not when the next one replaces it
                 if out is None:
                     continue
-                if not rclpy.ok(context=self.context):
+                if not rclpy.ok(context=self.context) or slot.closed:
                     break
                 self.pub_odom.publish(out.odometry)
                 if self.pub_tf is not None and out.tf is not None:
                     self.pub_tf.publish(out.tf)
                 if self.pub_path.get_subscription_count() > 0 and self._path_due(out.stamp):
-                    self.pub_path.publish(out.path)  # ~3.7 ms for 1,000 poses: only when wanted
-            except Exception as err:  # never let one frame kill the node
-                if self._slot.closed:
+                    self.pub_path.publish(out.path)  # a long path costs milliseconds: only when wanted
+                if out.scan is not None:
+                    self.pub_scan.publish(out.scan)
+            except Exception as err:  # a bug: never let one frame kill the node, and show where it is
+                if slot.closed:
                     break
+                import traceback
+
                 self.get_logger().error(f"frame failed: {err}\n{traceback.format_exc()}")
-                self.processor.note_failure(f"{type(err).__name__}: {err}")
+                processor.note_failure(f"{type(err).__name__}: {err}")
 
     def _path_due(self, stamp: float) -> bool:
         """path.period seconds of stamps since the last path sent (always after a stamp went backwards)."""
         last = self._last_path_stamp
-        if last is not None and last <= stamp < last + self.processor.settings.path_period:
+        if last is not None and last <= stamp < last + self.settings.path_period:
             return False
         self._last_path_stamp = stamp
         return True
 
+
+class LineOdomNode(OdometryNodeBase, Node):
+    def __init__(self, **kwargs):
+        Node.__init__(self, NODE_NAME, **kwargs)
+        self.declare_and_load()
+        self.processor = self.make_processor()
+        self.log_parameters()
+        self.log_ready(self.start_odometry())
+
     def shutdown(self) -> None:
-        self._slot.close()
-        self._camera_info_event.set()
-        if self._worker.is_alive():
-            self._worker.join(timeout=5.0)
+        self.stop_odometry()
 
 
 def main(args=None) -> int:
-    """Console script ``node``: start, log the parameters, spin; exit 0 on Ctrl-C / SIGTERM, 2 on a bad
-    parameter (with the reason, no traceback)."""
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = LineOdomNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except ParameterSetupError as err:
-        rclpy.logging.get_logger(NODE_NAME).fatal(f"bad parameter: {err}")
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        # Ctrl-C / SIGTERM: rclpy's signal handler shuts the context down from another thread, and an executor
-        # building its wait set at that moment raises this instead of ExternalShutdownException (ros2/rclpy#398).
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.shutdown()
-            try:
-                node.destroy_node()
-            except Exception:  # noqa: BLE001 - the context may already be gone at shutdown
-                pass
-        if rclpy.ok():
-            rclpy.shutdown()
-    return code
+    """Console script ``node``."""
+    return run(LineOdomNode, args)
 
 
 if __name__ == "__main__":

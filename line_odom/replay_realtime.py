@@ -21,6 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from line_odom import bags, evaluation, frames as frames_mod
+from line_odom.replay_common import PRESET_FOR_INPUT, ReplayRun, node_settings
 
 NODE_OUTPUT_TOPIC = "/odom"
 STARTUP_TIMEOUT_S = 60.0
@@ -169,7 +170,6 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
     from line_odom import convert
-    from line_odom.replay import PRESET_FOR_INPUT, ReplayRun, node_settings
 
     preset = params or PRESET_FOR_INPUT[inp.kind]
     overrides = dict(overrides or {})

@@ -1,7 +1,7 @@
 """The sensor's mounting from static TF: the transform base_frame -> the scan's header.frame_id, as a robot's URDF
 (robot_state_publisher) or a static_transform_publisher puts it on /tf_static.
 
-tf2_ros and tf2_py are not published as wheels for this ROS (DESIGN.md §4), so the tree of static transforms is kept
+tf2_ros and tf2_py are not published as wheels for this ROS (docs/DESIGN.md §4), so the tree of static transforms is kept
 here: every child frame has one parent (REP-105), and a lookup walks both frames up to their common ancestor.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """line_odom_core: the ROS-free registration engine (C++17 + Eigen behind one pybind11 module).
 
-Conventions (DESIGN.md §3): poses are 4x4 numpy arrays ``T_ab`` with ``x_a = T_ab @ x_b``; lines are Plücker
+Conventions (docs/DESIGN.md §3): poses are 4x4 numpy arrays ``T_ab`` with ``x_a = T_ab @ x_b``; lines are Plücker
 6-vectors ``(d, m)`` with unit ``d``; planes are ``(n, delta)`` with ``n·x + delta = 0`` and unit ``n``.
 """
 from line_odom_core._core import __version__, build_info

@@ -282,8 +282,14 @@ def validate_value(name: str, value: Any) -> Any:
     schema = _schema_map()
     if name not in schema:
         raise ValueError(f"unknown engine setting {name!r}; known: {', '.join(sorted(schema))}")
-    entry = schema[name]
-    bad = ValueError(f"{name}: expected {_range_text(entry)}, got {value!r}")
+    return validate_entry(schema[name], value, CHOICES.get(name))
+
+
+def validate_entry(entry: ConfigEntry, value: Any, choices: tuple[str, ...] | None = None) -> Any:
+    """validate_value for an entry of any schema (the node's own parameters use it too); ``choices`` for a str."""
+    name = entry.name
+    range_text = ("one of " + ", ".join(choices)) if choices else _range_text(entry)
+    bad = ValueError(f"{name}: expected {range_text}, got {value!r}")
     if entry.type is bool:
         if isinstance(value, bool):
             return value
@@ -291,7 +297,6 @@ def validate_value(name: str, value: Any) -> Any:
     if entry.type is str:
         if not isinstance(value, str):
             raise bad
-        choices = CHOICES.get(name)
         if choices is not None:
             match = [c for c in choices if c.lower() == value.lower()]
             if not match:

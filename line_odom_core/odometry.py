@@ -23,8 +23,9 @@ class FrameResult:
     """One registered frame.
 
     pose: T_world_sensor (4x4); delta: T_prev_curr (4x4), the motion since the previous frame;
-    covariance: 6x6 of delta, order (x y z rx ry rz), perturbation on the left; twist: (vx vy vz wx wy wz)
-    of delta over the stamp interval, in the sensor frame (zeros on the first frame);
+    covariance: 6x6 of delta, order (x y z rx ry rz), perturbation on the left; twist: (vx vy vz wx wy wz),
+    ``body_twist(delta, dt)``: the constant velocity in the sensor frame that moves it by delta over the stamp interval
+    (zeros on the first frame);
     stats: see ``_core.pyi`` (solver, candidates, inliers, h_lines, v_lines, planes, ms, degenerate, ...)."""
 
     stamp: float
@@ -37,6 +38,27 @@ class FrameResult:
     @property
     def degenerate(self) -> bool:
         return bool(self.stats["degenerate"])
+
+
+def log_se3(T: np.ndarray) -> np.ndarray:
+    """xi = (rho, phi) with exp(xi) = T: the constant body twist that moves by T in unit time."""
+    phi = np.asarray(_core.rotation_vector(np.ascontiguousarray(T[:3, :3], dtype=float)), dtype=float)
+    theta = float(np.linalg.norm(phi))
+    W = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if theta < 1e-6:
+        V_inv = np.eye(3) - 0.5 * W + W @ W / 12.0
+    else:
+        half = 0.5 * theta
+        coeff = (1.0 - half * math.cos(half) / math.sin(half)) / (theta * theta)
+        V_inv = np.eye(3) - 0.5 * W + coeff * (W @ W)
+    return np.concatenate([V_inv @ T[:3, 3], phi])
+
+
+def body_twist(motion: np.ndarray, seconds: float) -> np.ndarray:
+    """The twist (vx vy vz wx wy wz) of a motion T_prev_curr over `seconds`, in the moving frame's axes (REP-105's
+    twist in the child frame): log(motion) / seconds, so that T_prev exp(twist seconds) = T_curr exactly. The node
+    publishes the same for the base."""
+    return log_se3(motion) / seconds
 
 
 def _stamp(stamp: Any) -> float:
@@ -238,8 +260,7 @@ class Odometry:
         twist = np.zeros(6)
         if self._last_stamp is not None and stamp > self._last_stamp:
             dt = stamp - self._last_stamp
-            twist[:3] = delta[:3, 3] / dt
-            twist[3:] = _core.rotation_vector(delta[:3, :3]) / dt
+            twist = body_twist(delta, dt)
         self._last_stamp = stamp
         return FrameResult(stamp, raw.pose, delta, raw.covariance, twist, raw.stats)
 

@@ -4,7 +4,7 @@
 #   1. CPython 3.11 (the ROS 2 Jazzy wheels are built for 3.11); PYTHON=/path/to/python3.11 to choose
 #   2. system packages the build needs (g++, cmake, Eigen headers, Python headers, venv) - apt-get when
 #      missing - and .venv in the repository root
-#   3. pinned Python dependencies: requirements/dev.txt under the constraints requirements/lock.txt
+#   3. pinned Python dependencies: requirements/dev.txt (and no-deps.txt) under the constraints requirements/lock.txt
 #   4. tf2_msgs built into the venv when `import tf2_msgs.msg` fails (scripts/build_tf2_msgs.sh)
 #   5. line_odom itself, editable (pip install -e .), with the engine extension built in place
 #
@@ -105,11 +105,13 @@ if [ -n "$base" ]; then
 fi
 
 # ---- 3. pinned Python dependencies ---------------------------------------------------------------
-deps_fp="$(fingerprint "$REQ/base.txt" "$REQ/dev.txt" "$REQ/lock.txt")"
+deps_fp="$(fingerprint "$REQ/base.txt" "$REQ/dev.txt" "$REQ/no-deps.txt" "$REQ/lock.txt")"
 if ! stamp_ok deps "$deps_fp"; then
     say "installing pinned Python dependencies (requirements/dev.txt, constraints requirements/lock.txt)"
     pip_quiet install "$(grep -E '^pip==' "$REQ/lock.txt")" || die "could not install pip"
     pip_quiet install -r "$REQ/dev.txt" -c "$REQ/lock.txt" || die "pip install -r requirements/dev.txt failed"
+    # (no-deps.txt says why these come without their declared dependencies)
+    pip_quiet install --no-deps -r "$REQ/no-deps.txt" -c "$REQ/lock.txt" || die "pip install -r requirements/no-deps.txt failed"
     stamp_set deps "$deps_fp"
 fi
 

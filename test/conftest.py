@@ -8,8 +8,66 @@ sys.executable: the ROS wheels' bootstrapper has already set LD_LIBRARY_PATH for
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
+
+# Markers per test file (registered in setup.cfg [tool:pytest]); pytest_collection_modifyitems below puts them on
+# every test of the file. `make test` runs everything; `-m "(unit or engine) and not slow"` is the fast subset.
+# A test file not listed here gets no marker and runs only in the full suite: add new files here.
+FILE_MARKERS: dict[str, tuple[str, ...]] = {
+    # Python alone
+    "test_config.py": ("unit",),
+    "test_docs.py": ("unit",),
+    "test_engine_ros_free.py": ("unit",),
+    "test_fuzz_convert.py": ("unit",),
+    "test_node_launch_files.py": ("unit",),
+    "test_static_tf.py": ("unit",),
+    # the engine on synthetic inputs
+    "test_estimate_motion.py": ("engine",),
+    "test_fuzz_engine.py": ("engine",),
+    "test_large_input.py": ("engine",),
+    "test_node_processor.py": ("engine",),
+    "test_ransac.py": ("engine",),
+    "test_solvers.py": ("engine",),
+    # the engine on simulated drives
+    "test_degenerate_scenes.py": ("engine", "slow"),
+    "test_deskew.py": ("engine", "slow"),
+    "test_odometry_sim.py": ("engine", "slow"),
+    "test_sim.py": ("engine", "slow"),
+    "test_timing_faults.py": ("engine", "ros", "slow"),
+    # the real KITTI / TUM excerpts
+    "test_bags.py": ("data",),
+    "test_cli.py": ("data",),
+    "test_convert.py": ("data",),
+    "test_eval.py": ("data",),
+    "test_features.py": ("data",),
+    "test_input_layout.py": ("data",),
+    "test_line_selection.py": ("data",),
+    "test_motion_persistence.py": ("data",),
+    "test_point_refine.py": ("data",),
+    "test_range_image.py": ("data",),
+    "test_range_image_downsampled.py": ("data",),
+    "test_sensor_fit.py": ("data",),
+    "test_threads.py": ("data",),
+    "test_window.py": ("data",),
+    "test_imu_rotation.py": ("data", "slow"),
+    "test_motion_guess.py": ("data", "slow"),
+    "test_odometry_kitti.py": ("data", "slow"),
+    "test_odometry_tum.py": ("data", "slow"),
+    "test_recovery.py": ("data", "slow"),
+    "test_turns.py": ("data", "slow"),
+    # DDS, node processes, builds, benchmarks
+    "test_node.py": ("ros", "data", "slow"),
+    "test_replay.py": ("ros", "data", "slow"),
+    "test_ros_runtime.py": ("ros",),
+    "test_package_build.py": ("ros", "slow"),
+    "test_bench.py": ("data", "slow"),
+    "test_batch.py": ("data", "slow"),
+    "test_node_hostile.py": ("ros", "slow"),
+    "test_node_lifecycle.py": ("ros", "slow"),
+    "test_readers.py": ("data", "slow"),
+}
 
 # 1..100: Fast DDS derives UDP ports from the domain id (7400 + 250 * id + ...); ids above ~100 reach
 # the ephemeral port range on Linux.
@@ -33,3 +91,9 @@ def ros_env(monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
 def pytest_configure(config: pytest.Config) -> None:
     # rosidl's parser imports lark, which imports the deprecated sre_* modules: not ours to fix
     config.addinivalue_line("filterwarnings", "ignore:module 'sre_(parse|constants)' is deprecated:DeprecationWarning")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        for name in FILE_MARKERS.get(Path(str(item.fspath)).name, ()):
+            item.add_marker(getattr(pytest.mark, name))

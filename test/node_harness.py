@@ -30,6 +30,13 @@ def use_large_message_profile() -> None:
     os.environ.update(PROFILE_ENV)
 
 
+def with_profile(env: dict, large_message_profile: bool = True) -> dict:
+    """`env` with the large-message profile set, or with every profile variable removed (Fast DDS's defaults)."""
+    if large_message_profile:
+        return {**env, **PROFILE_ENV}
+    return {k: v for k, v in env.items() if k not in ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")}
+
+
 def _ros_value(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -41,18 +48,18 @@ def _ros_value(value) -> str:
 
 
 class NodeProcess:
-    """``python -m line_odom.node --ros-args -r __ns:=/<ns> -p k:=v ...``; stop() sends SIGINT and checks the
-    node exits 0 without a traceback."""
+    """``python -m line_odom.node --ros-args -r __ns:=/<ns> -p k:=v ...`` (``module``: line_odom.lifecycle_node for
+    the managed node); stop() sends SIGINT and checks the node exits 0 without a traceback."""
 
     def __init__(self, env: dict, params: dict | None = None, namespace: str | None = None,
-                 extra_args: list[str] | None = None):
+                 extra_args: list[str] | None = None, module: str = "line_odom.node", large_message_profile: bool = True):
         self.namespace = namespace or "/t" + uuid.uuid4().hex[:8]
-        args = [sys.executable, "-m", "line_odom.node", "--ros-args", "-r", f"__ns:={self.namespace}"]
+        args = [sys.executable, "-m", module, "--ros-args", "-r", f"__ns:={self.namespace}"]
         for key, value in (params or {}).items():
             args += ["-p", f"{key}:={_ros_value(value)}"]
         args += extra_args or []
         self.log = tempfile.NamedTemporaryFile("w+", prefix="line_odom_node_", suffix=".log", delete=False)
-        self.proc = subprocess.Popen(args, cwd=str(ROOT), env={**env, **PROFILE_ENV}, stdout=self.log,
+        self.proc = subprocess.Popen(args, cwd=str(ROOT), env=with_profile(env, large_message_profile), stdout=self.log,
                                      stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
 
     def output(self) -> str:

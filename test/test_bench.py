@@ -66,7 +66,7 @@ def test_gt_consistency_registers_the_scans_from_the_ground_truth(gt_consistency
     # 07: started at the ground truth, the aligner stays there (measured 0.121 / 0.116 m a frame, RPE 0.0071 m) ...
     gt_forward, forward, rpe = row("07")
     assert abs(forward - gt_forward) < 0.02 and rpe < 0.02
-    # ... 00: it leaves it, 0.11 m a frame short (0.859 / 0.749 m, RPE 0.1165 m): more than issue 4's 1/36 goal
+    # ... 00: it leaves it, 0.11 m a frame short (0.859 / 0.749 m, RPE 0.1165 m): more than the 1/36 goal
     # for 00 (half of KISS-ICP's 0.1957 m), which asks for less error than the scans' own motion has.
     gt_forward, forward, rpe = row("00")
     assert gt_forward - forward > 0.08 and rpe > 0.0979

@@ -244,3 +244,41 @@ def test_stamp_helpers():
     assert convert.stamp_to_sec(s) == pytest.approx(1234.567890123)
     with pytest.raises(ValueError, match="stamp"):
         convert.sec_to_stamp(float("nan"))
+
+
+@pytest.mark.parametrize("offsets, field", [((0, 2, 8), "fields[y].offset"), ((0, 0, 0), "fields[y].offset"),
+                                            ((0, 4, 6), "fields[z].offset")])
+def test_overlapping_fields_are_malformed(offsets, field):
+    """y at offset 2 (inside x), or x = y = z at offset 0: a writer's bug, not a layout; read as garbage otherwise."""
+    from sensor_msgs.msg import PointField
+
+    msg = _xyz_cloud(4)
+    msg.fields = [PointField(name=n, offset=o, datatype=7, count=1) for n, o in zip("xyz", offsets)]
+    with pytest.raises(convert.PointCloudError, match="overlap") as err:
+        convert.pointcloud2_to_arrays(msg)
+    assert err.value.field == field
+
+
+def test_field_past_point_step_is_malformed():
+    from sensor_msgs.msg import PointField
+
+    msg = _xyz_cloud(4)
+    msg.fields = list(msg.fields) + [PointField(name="intensity", offset=msg.point_step - 2, datatype=7, count=1)]
+    with pytest.raises(convert.PointCloudError, match="too small for field 'intensity'"):
+        convert.pointcloud2_to_arrays(msg)
+
+
+@pytest.mark.parametrize("sec, nanosec, field", [(-1, 0, "sec"), (0, 1_000_000_000, "nanosec"), (3, -1, "nanosec")])
+def test_header_stamp_out_of_range_names_the_field(sec, nanosec, field):
+    stamp = type("Stamp", (), {"sec": sec, "nanosec": nanosec})()
+    with pytest.raises(convert.ConversionError, match=f"header.stamp.{field}"):
+        convert.header_stamp_ns(stamp, "PointCloud2")
+    ok = type("Stamp", (), {"sec": 3, "nanosec": 999_999_999})()
+    assert convert.header_stamp_ns(ok, "PointCloud2") == 3_999_999_999
+
+
+def test_depth_image_over_max_pixels_is_refused_before_conversion():
+    img = convert.depth_to_image(np.full((40, 50), 2.0))
+    with pytest.raises(convert.TooLargeError, match="2000 pixels exceed the max_pixels limit of 1999"):
+        convert.image_to_depth(img, max_pixels=1999)
+    assert convert.image_to_depth(img, max_pixels=2000).shape == (40, 50)

@@ -1,5 +1,5 @@
 """The engine is ROS-free: `import line_odom_core` (every module of it) works where rclpy cannot be
-imported, reports how it was built, and nothing in line_odom_core imports ROS (DESIGN.md section 1)."""
+imported, reports how it was built, and nothing in line_odom_core imports ROS (docs/DESIGN.md §1)."""
 from __future__ import annotations
 
 import ast

@@ -254,7 +254,7 @@ def test_kitti_ground_plane_and_lines(seq):
     assert np.min(np.concatenate(lengths)) >= _core.feature_config()["lines.min_length"] - 1e-9
 
 
-# Lines per normal cluster, measured on frames 0 and 5 (2026-11-25): 1/36 00: (436,119,44) (385,163,45),
+# Lines per normal cluster, measured on frames 0 and 5: 1/36 00: (436,119,44) (385,163,45),
 # 07: (314,166,34) (325,137,40); 1/64 00: (291,47,17) (254,76,17), 07: (205,114,14) (205,112,10).
 # Sequence 04 is a highway (road and side barriers): its third direction has 0-4 lines at 1/36, so only its
 # first two clusters are held to a floor: 1/36 (486,27,_) (491,27,_), 1/64 (325,2,_) (331,4,_).
@@ -288,7 +288,7 @@ def test_tum_depth_lines_lie_on_the_points(step):
         sizes = f["stats"]["cluster_sizes"]
         if step == 10:
             # fr1/xyz looks down at a desk in front of a wall: desk and wall normals dominate; surfaces facing
-            # sideways (monitor, box sides) are few at 64 x 48. Measured 2026-11-25 on frames 0, 30, .., 270:
+            # sideways (monitor, box sides) are few at 64 x 48. Measured on frames 0, 30, .., 270:
             # first cluster 174-290, second 9-180, third 0-12 (53 in all).
             assert sizes[0] >= 100 and sizes[1] >= 4, (i, sizes)
             assert len(f["planes"]["rms"]) >= 1

@@ -399,7 +399,7 @@ print("ok")
 
 
 def test_absurd_intrinsics_do_not_corrupt_memory():
-    """Found by the depth fuzzer (2026-11-25): absurd intrinsics (fx 5e227, fy 9e-110, garbage last row) crashed
+    """Found by the depth fuzzer: absurd intrinsics (fx 5e227, fy 9e-110, garbage last row) crashed
     register_depth — first an endless recursion in line_fit's fit_upper (fixed), then 'malloc(): invalid size'
     heap corruption (gone with the engine of 14:31 UTC, cause not pinned down). Runs in a child process so a
     regression fails this test instead of killing pytest."""

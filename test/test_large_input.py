@@ -101,17 +101,17 @@ def test_clouds_above_max_points_are_rejected_clearly_and_the_next_frame_is_proc
     t0 = time.perf_counter()
     assert proc.process_pointcloud(big) is None
     assert time.perf_counter() - t0 < 1.0, "the size check comes before any conversion work"
-    assert proc.counters["frames_malformed"] == 1
+    assert proc.counters["frames_too_large"] == 1
     assert "max_points limit of 500000" in proc.last_error and str(big.width) in proc.last_error
     status = proc.diagnostics().status[0]
-    assert "1 frame(s) malformed" in status.message
+    assert "1 frame(s) too large" in status.message
     small = convert.pointcloud2_from_xyz(pts1[::4], ring=ring1[::4], frame_id="os", stamp=100.0 + stamp1)
     out = proc.process_pointcloud(small)
     assert out is not None and np.isfinite(out.T_odom_base).all()
 
 
 def test_max_points_parameter_has_a_range_and_a_clear_error():
-    from line_odom.processor import validate_node_value
+    from line_odom.node_parameters import validate_node_value
 
     assert validate_node_value("max_points", 1000) == 1000
     for bad in (-1, 1.5, "many"):

@@ -26,14 +26,16 @@ def test_launch_file_compiles_and_imports_without_launch():
     module = _load_launch_module()
     assert callable(module.generate_launch_description)
     text = LAUNCH.read_text()
-    for arg in ("params_file", "use_sim_time", "points", "depth_image", "camera_info", "fastdds_profile", "rviz"):
+    for arg in ("params_file", "use_sim_time", "points", "depth_image", "camera_info", "fastdds_profile", "rviz",
+                "initialpose", "lifecycle"):
         assert f'DeclareLaunchArgument("{arg}"' in text, arg
-    for topic in ("points", "depth/image", "depth/camera_info", "odom", "path"):
+    for topic in ("points", "depth/image", "depth/camera_info", "odom", "path", "initialpose"):
         assert f'("{topic}", LaunchConfiguration(' in text, topic
+    assert "'lifecycle_node' if '" in text and "else 'node'" in text  # both executables setup.py installs
 
 
 def test_launch_description_builds_where_launch_ros_exists():
-    pytest.importorskip("launch_ros", reason="launch_ros is not installable as a wheel here (DESIGN.md §4)")
+    pytest.importorskip("launch_ros", reason="launch_ros is not installable as a wheel here (docs/DESIGN.md §4)")
     description = _load_launch_module().generate_launch_description()
     assert len(description.entities) > 2
 

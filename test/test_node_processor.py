@@ -270,19 +270,162 @@ def test_se3_log_and_left_jacobian_inverse_against_finite_differences():
     np.testing.assert_allclose(T @ D @ np.linalg.inv(T), expm(hat(frames.adjoint(T) @ xi)), atol=1e-12)
 
 
-def test_repeated_rejections_are_counted_but_logged_once():
+def test_repeated_rejections_are_counted_and_logged_once_per_reason_with_a_count():
+    """300 malformed clouds at 100 Hz, two defects alternating: one line per defect, then one line per defect telling
+    how many more came in the window (a rate limit that compared with the last reason only logged all 300)."""
+    from line_odom.diagnostics import RateLimitedLog
+
     messages = []
     log = type("Log", (), {"info": lambda self, m: None, "warning": lambda self, m: messages.append(m)})()
     config = load_config("kitti_hdl64")
     proc = OdometryProcessor(config, NodeSettings.from_mapping(config.extra), engine=ScriptedEngine([], np.eye(6)),
                              logger=log)
-    bad = _cloud(1.0)
-    bad.fields = bad.fields[1:]
-    for _ in range(20):
-        assert proc.process_pointcloud(bad) is None
-    assert proc.counters["frames_malformed"] == 20
-    assert len(messages) == 1 and "no 'x' field" in messages[0]
+    now = [1000.0]
+    proc.log_limiter = RateLimitedLog(proc._warn, clock=lambda: now[0])
+    no_x = _cloud(1.0)
+    no_x.fields = no_x.fields[1:]
     empty = _cloud(2.0)
     empty.width = 0
-    proc.process_pointcloud(empty)  # a different reason is logged at once, with the suppressed count
-    assert len(messages) == 2 and "empty cloud" in messages[1] and "19 more" in messages[1]
+    for k in range(300):
+        bad = no_x if k % 2 == 0 else empty
+        bad.header.stamp = convert.sec_to_stamp(1.0 + 0.01 * k)  # a stamp in the text does not make a new reason
+        assert proc.process_pointcloud(bad) is None
+        now[0] += 0.01
+    assert proc.counters["frames_malformed"] == 300
+    assert len(messages) == 2, messages
+    assert "no 'x' field" in messages[0] and "empty cloud" in messages[1]
+    proc.diagnostics()  # within the window: nothing to tell yet
+    assert len(messages) == 2
+    now[0] += 10.0
+    proc.diagnostics()  # the window is over: the counts
+    assert len(messages) == 4, messages
+    assert sorted(m.split("... ")[1] for m in messages[2:]) == ["149 more like this in the last 10 s"] * 2
+    assert proc.process_pointcloud(no_x) is None  # a new window: logged again at once
+    assert len(messages) == 5 and "more like this" not in messages[4]
+
+
+def test_oversized_depth_image_is_refused_before_conversion_and_memory_returns(monkeypatch):
+    """An image over max_pixels, or contradicting its CameraInfo, is refused from its header: no conversion runs
+    (checked by making it fail), each is counted and logged once naming the limit, and the process's RSS stays
+    within a margin of where it was after the first refusal."""
+    from line_odom import processor as processor_module
+    from line_odom.diagnostics import RateLimitedLog
+
+    messages = []
+    log = type("Log", (), {"info": lambda self, m: None, "warning": lambda self, m: messages.append(m)})()
+    config = load_config("tum_kinect")
+    proc = OdometryProcessor(config, NodeSettings.from_mapping({**config.extra, "max_pixels": 640 * 480}),
+                             engine=ScriptedEngine([np.eye(4)] * 4, np.eye(6) * 1e-4), logger=log)
+    proc.log_limiter = RateLimitedLog(proc._warn, clock=lambda: 0.0)
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    assert proc.process_depth(convert.depth_to_image(np.full((480, 640), 2.0), stamp=1.0),
+                              convert.camera_info_from_K(K, 640, 480)) is not None
+
+    def no_conversion(*args, **kwargs):
+        raise AssertionError("the image was converted")
+
+    monkeypatch.setattr(processor_module.convert, "image_to_depth", no_conversion)
+    big = convert.depth_to_image(np.full((2000, 3000), 2.0), stamp=2.0)  # 12 MB of 16UC1
+    assert proc.process_depth(big) is None
+    rss0 = _rss_mb()
+    for k in range(20):
+        msg = convert.depth_to_image(np.full((2000, 3000), 2.0), stamp=3.0 + k)
+        assert proc.process_depth(msg) is None
+        del msg
+    assert proc.counters["frames_too_large"] == 21
+    assert _rss_mb() - rss0 < RSS_MARGIN_MB
+    too_large = [m for m in messages if "max_pixels" in m]
+    assert len(too_large) == 1 and "3000 x 2000 = 6000000 pixels exceed the max_pixels limit of 307200" in \
+        too_large[0]
+    # a well-sized image of another size than its CameraInfo: refused unconverted too
+    other = convert.depth_to_image(np.full((240, 320), 2.0), stamp=30.0)
+    assert proc.process_depth(other) is None and proc.counters["frames_malformed"] == 1
+    assert "CameraInfo is 640 x 480 but the image is 320 x 240" in proc.last_error
+    assert proc.check_depth_image(other) is False and proc.counters["frames_malformed"] == 2
+    status = proc.diagnostics().status[0]
+    assert "21 frame(s) too large" in status.message
+
+
+RSS_MARGIN_MB = 40.0  # 20 refused 12 MB images: holding even two of them would exceed it
+
+
+def _rss_mb() -> float:
+    import gc
+    from pathlib import Path
+
+    gc.collect()
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    raise KeyError("VmRSS")
+
+
+@pytest.mark.parametrize("sec, nanosec, field", [(-5, 0, "header.stamp.sec"), (10, 1_000_000_000, "header.stamp.nanosec"),
+                                                 (10, 2**32 - 1, "header.stamp.nanosec")])
+def test_stamps_no_clock_gives_are_refused_as_malformed_in_one_line(sec, nanosec, field):
+    messages = []
+    log = type("Log", (), {"info": lambda self, m: None, "warning": lambda self, m: messages.append(m)})()
+    proc, _ = _processor([np.eye(4)] * 2)
+    proc._warn = log.warning
+    proc.log_limiter = type(proc.log_limiter)(log.warning)
+    bad = _cloud(1.0)
+    bad.header.stamp.sec, bad.header.stamp.nanosec = sec, nanosec
+    for _ in range(60):
+        assert proc.process_pointcloud(bad) is None
+    assert proc.counters["frames_malformed"] == 60 and proc.counters["frames_processed"] == 0
+    assert len(messages) == 1 and f"PointCloud2.{field}" in messages[0] and "\n" not in messages[0]
+    depth_proc, _ = _processor([np.eye(4)], input="depth")
+    img = convert.depth_to_image(np.full((4, 5), 2.0), stamp=1.0)
+    img.header.stamp.sec, img.header.stamp.nanosec = sec, nanosec
+    assert depth_proc.process_depth(img, convert.camera_info_from_K(np.diag([500.0, 500.0, 1.0]), 5, 4)) is None
+    assert depth_proc.counters["frames_malformed"] == 1 and f"Image.{field}" in depth_proc.last_error
+    assert proc.process_pointcloud(_cloud(2.0)) is not None  # and the next good frame goes on
+
+
+def test_node_parameter_table_and_settings_agree():
+    """Each row of the table is a NodeSettings attribute with the row's default (the table is the one source)."""
+    from line_odom.node_parameters import NODE_PARAMETERS
+
+    fields = {f.name for f in dataclasses.fields(NodeSettings)}
+    assert fields == {p.attribute for p in NODE_PARAMETERS}
+    defaults = NodeSettings()
+    for p in NODE_PARAMETERS:
+        assert getattr(defaults, p.attribute) == p.default, p.name
+        assert validate_node_value(p.name, p.default) == p.default
+
+
+def test_registered_scan_is_built_only_when_wanted():
+    """~/scan: nothing is built unless scan_wanted (the node sets it while the topic has a subscriber); an organized
+    cloud's scan is every downsample-th row and column from the first, within the range limits, at the frame's
+    stamp and frame."""
+    proc, _ = _processor([np.eye(4)] * 3)
+    proc.config = load_config("kitti_hdl64", {"downsample": 2, "sensor.min_range": 1.0})
+    rng = np.random.default_rng(1)
+    xyz = rng.uniform(-20, 20, size=(10, 20, 3))
+    xyz[0, 0] = np.nan
+    xyz[2, 2] = (0.1, 0.1, 0.1)  # closer than sensor.min_range
+    msg = convert.pointcloud2_from_xyz(xyz, frame_id="lidar", stamp=5.0)
+    assert proc.process_pointcloud(msg).scan is None
+    proc.scan_wanted = True
+    msg.header.stamp = convert.sec_to_stamp(5.1)
+    out = proc.process_pointcloud(msg)
+    scan = convert.pointcloud2_to_arrays(out.scan)
+    assert out.scan.header.frame_id == "lidar" and convert.stamp_to_ns(out.scan.header.stamp) == 5_100_000_000
+    kept = xyz[::2, ::2].reshape(-1, 3)
+    kept = kept[np.isfinite(kept).all(axis=1) & (np.linalg.norm(kept, axis=1) >= 1.0)]
+    assert len(kept) == 5 * 10 - 2
+    np.testing.assert_allclose(scan.xyz, kept.astype(np.float32))
+
+
+def test_the_node_imports_no_offline_tooling():
+    """The node's runtime path (node, lifecycle node, processor) imports no bag, dataset, replay or CLI code."""
+    import subprocess
+    import sys
+
+    code = ("import sys, line_odom.node, line_odom.lifecycle_node; "
+            "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('line_odom', 'rosbags')))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    offline = ("line_odom.bags", "line_odom.datasets", "line_odom.replay", "line_odom.cli", "line_odom.readers",
+               "line_odom.batch", "line_odom.evaluation", "line_odom.sim", "rosbags")
+    assert "line_odom.processor" in loaded
+    assert [m for m in loaded if m.startswith(offline)] == []

@@ -123,8 +123,10 @@ def test_colcon_build_installs_package_and_engine(workspace: Workspace):
     assert files[2]
 
 
-def test_ros2_run_node_starts_and_exits_cleanly_on_sigint(workspace: Workspace, ros_env: dict[str, str]):
-    exe = ros2_run_executable(workspace, PACKAGE, "node")
+@pytest.mark.parametrize("executable", ["node", "lifecycle_node"])
+def test_ros2_run_node_starts_and_exits_cleanly_on_sigint(workspace: Workspace, ros_env: dict[str, str],
+                                                          executable: str):
+    exe = ros2_run_executable(workspace, PACKAGE, executable)
     assert exe.parent == workspace.root / "install" / PACKAGE / "lib" / PACKAGE
 
     env = dict(workspace.env)

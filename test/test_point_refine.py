@@ -1,7 +1,7 @@
 """The point-to-plane refinement after the lines (`points.*`, point_refine.hpp) on real KITTI frames: what it gains,
 where it is off, and that it is joint with the lines' estimate.
 
-Measured (kitti_hdl64, seed 0, ten frames at full resolution; docs/RESULTS.md, session 18), mean t m / r deg:
+Measured (kitti_hdl64, seed 0, ten frames at full resolution; docs/RESULTS.md, "Preset choices"), mean t m / r deg:
 with the preset's refinement 00 0.110 / 0.154, 04 0.025 / 0.040, 07 0.0068 / 0.024; without it (points.weight 0)
 00 0.120 / 0.180, 04 0.019 / 0.050, 07 0.0082 / 0.014. KISS-ICP on the same points: 0.113 / 0.165, 0.029 / 0.045,
 0.023 / 0.041."""

@@ -1,4 +1,4 @@
-"""Minimal solvers 1L2P, 3L1P and 7L (paper §4-5) through the Python bindings (issue 3).
+"""Minimal solvers 1L2P, 3L1P and 7L (paper §4-5) through the Python bindings.
 
 Ground truth: a random pose T_ab and an exact, noise-free minimal sample built from it (frame-a item = frame-b item
 moved by T_ab). Found = some returned pose within 1e-6 (max abs 4x4 entry) of the truth. Instances are generated

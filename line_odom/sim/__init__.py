@@ -3,7 +3,7 @@
 Deterministic by seed; pure numpy, vectorised over rays. Used for long runs (KITTI devkit metric), the
 ``line_odom demo`` built-in input and the degenerate-scene / soak tests.
 
-Conventions (DESIGN.md §3)
+Conventions (docs/DESIGN.md §3)
     Poses are 4x4 float64 arrays ``T_world_sensor`` with ``x_world = T @ x_sensor``. World: z up, metres.
     LiDAR frame: x forward, y left, z up. Camera optical frame: z forward, x right, y down.
     ``T_BODY_OPTICAL``: ``T_world_optical = T_world_body @ T_BODY_OPTICAL``.
@@ -90,7 +90,7 @@ Export (``export.py``)
 Timing: ``python -m line_odom.sim [--frames N]`` prints per-sensor milliseconds per frame (HDL-64E street scan
     ~30-50 ms on the 2-core dev VM).
 
-Degenerate inputs for reliability tests (issue 7)
+Degenerate inputs for reliability tests
     empty space ``simulate("empty")``; only a ground plane ``"ground"``; long featureless corridor ``"corridor"``;
     all points beyond range ``"far"``; a single wall ``"wall"``; heavy noise ``noise_std=0.5`` (or ``dropout``);
     a frame identical to the previous ``speed=0`` with ``noise_std=0`` (or feed the same frame twice).
