@@ -369,8 +369,8 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
 // registration knows better than the prediction it was deskewed at when the velocity changed (a turn reversed, a
 // vehicle braking); after the stamp it moves at the next frame's, which no registration knows yet. So the part of a
 // sweep before its stamp is compared (a sweep stamped at its start has none: iterating those did not help,
-// docs/RESULTS.md, Session 17), and both scans of the pair are corrected alike at the registered velocity (the previous
-// scan at its own registered motion fed each frame's error into the next, Session 17).
+// docs/RESULTS.md, "Deskew"), and both scans of the pair are corrected alike at the registered velocity (the previous
+// scan at its own registered motion fed each frame's error into the next).
 bool Odometry::corrected_alike(const SweepVelocity& a, const SweepVelocity& b, double first, double last) const {
   constexpr double kLever = 20.0;  // m: a point this far away stands for the scan's lines (most lie within 20 m)
   return deskew_difference(a, b, first, last, kLever) <= config_.sensor.deskew_tolerance;
@@ -1091,7 +1091,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
         const PointRefineResult refined =
             refine_with_points(surface, prev_surface_, result.delta, result.covariance, config_.points);
         // The lines' covariance stays: the voxels' residuals share their surfaces' errors, and their information
-        // added in made KITTI 04's NEES/6 2.2 (docs/RESULTS.md, session 18).
+        // added in made KITTI 04's NEES/6 2.2 (docs/RESULTS.md, "Covariance").
         if (refined.applied) result.delta = refined.T;
         st.points_refined = refined.applied;
         st.point_matches = refined.matched;

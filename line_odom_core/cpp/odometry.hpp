@@ -1,4 +1,4 @@
-// Frame-to-frame odometry with state (DESIGN.md §2): organize -> downsample -> features -> predict (constant
+// Frame-to-frame odometry with state (docs/DESIGN.md §2): organize -> downsample -> features -> predict (constant
 // velocity) -> candidates -> hybrid RANSAC + refinement, 3 passes each seeded with the best estimate so far
 // (paper §6.3) -> compose the pose. A failed or degenerate registration holds the prediction, inflates the
 // covariance and says so in the stats; the pose is never NaN.

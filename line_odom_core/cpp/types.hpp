@@ -1,4 +1,4 @@
-// Geometry types shared by the whole engine (DESIGN.md §3).
+// Geometry types shared by the whole engine (docs/DESIGN.md §3).
 // Poses T_ab map frame-b coordinates into frame a: x_a = R x_b + t.
 #pragma once
 
