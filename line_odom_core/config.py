@@ -175,7 +175,7 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("registration.min_inlier_ratio", float, 0.3, "the estimate is degenerate (the prediction is held) "
                 "unless the share of the last pass's candidate line pairs that meet within the inlier threshold is "
                 "shown to exceed this (by 2 binomial standard deviations): otherwise the lines are too noisy to fix "
-                "the motion (0 = off; docs/RESULTS.md, "Preset choices")", 0.0, 1.0),
+                "the motion (0 = off; docs/RESULTS.md, 'Preset choices')", 0.0, 1.0),
     ConfigEntry("registration.max_prediction_gap", float, 1.0, "a stamp gap longer than this (s) drops the "
                 "velocity: the motion is found afresh as after a reset instead of extrapolated", 1e-3, 3600.0),
     ConfigEntry("registration.min_sample_pair_share", float, 0.95, "a RANSAC sample replaces the refined guess "
