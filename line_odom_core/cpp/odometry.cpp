@@ -108,10 +108,23 @@ std::uint64_t mix_seed(std::uint64_t seed, std::uint64_t frame, std::uint64_t pa
   return z ^ (z >> 31);
 }
 
+// Whether any point of the cloud is finite and within the range limits.
+template <typename Scalar>
+bool any_in_range(const Scalar* data, std::size_t count, std::size_t stride, const RangeLimits& limits) {
+  for (std::size_t i = 0; i < count; ++i) {
+    const Vec3 p(data[i * stride], data[i * stride + 1], data[i * stride + 2]);
+    const double r = p.norm();
+    if (std::isfinite(r) && r >= limits.min_range && r <= limits.max_range) return true;
+  }
+  return false;
+}
+
 // A scan the sensor model organizes into fewer rows than a V-line needs points (a 2D laser's single ring, a cloud of
-// another sensor) cannot be registered: refused at any frame before it touches the odometry's state.
-void check_fills_rows(const RangeImage& image, std::size_t count, const SensorModel& sensor, int min_points_v) {
-  if (count == 0) return;  // an empty scan is held as a failed registration
+// another sensor; also one whose points all lie in rows the downsampling drops) cannot be registered: refused at any
+// frame before it touches the odometry's state. A scan with no point in range is held as a failed registration.
+template <typename Scalar>
+void check_fills_rows(const RangeImage& image, const Scalar* data, std::size_t count, std::size_t stride,
+                      const RangeLimits& limits, const SensorModel& sensor, int min_points_v) {
   int rows = 0;
   for (int r = 0; r < image.rows; ++r)
     for (int c = 0; c < image.cols; ++c)
@@ -119,12 +132,11 @@ void check_fills_rows(const RangeImage& image, std::size_t count, const SensorMo
         ++rows;
         break;
       }
-  if (rows >= min_points_v) return;
+  if (rows >= min_points_v || (rows == 0 && !any_in_range(data, count, stride, limits))) return;
   throw std::invalid_argument("xyz: the cloud's points fill " + std::to_string(rows) + " of the " +
                               std::to_string(image.rows) + " rows the sensor model '" + sensor.name +
                               "' keeps of it; a scan needs points in at least lines.min_points_v = " +
-                              std::to_string(min_points_v) + " rows (a 2D laser, another sensor's cloud, every point "
-                              "out of sensor.min_range..max_range?)");
+                              std::to_string(min_points_v) + " rows (a 2D laser or another sensor's cloud?)");
 }
 
 }  // namespace
@@ -272,7 +284,8 @@ FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
       organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
-  if (frames_ > 0) check_fills_rows(image, count, sensor_, config_.features.lines.min_points_v);
+  if (frames_ > 0)
+    check_fills_rows(image, data, count, stride, config_.sensor.limits, sensor_, config_.features.lines.min_points_v);
   return register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
 }
 
@@ -312,7 +325,8 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   RangeImage image = rows > 0 ? organize_cloud(data, rows, cols, stride, config_.sensor.limits)
                               : organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits,
                                                             step);
-  if (rows == 0 && frames_ > 0) check_fills_rows(image, count, sensor_, config_.features.lines.min_points_v);
+  if (rows == 0 && frames_ > 0)
+    check_fills_rows(image, data, count, stride, config_.sensor.limits, sensor_, config_.features.lines.min_points_v);
   SweepTimes sweep;
   sweep.velocity = sweep_velocity(stamp, guess, rotation_guess, sweep_rate);
   if (count > 0) {
