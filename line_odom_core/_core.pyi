@@ -8,7 +8,7 @@ __version__: str
 
 def build_info() -> dict[str, Any]: ...
 
-# ---- solvers and motion estimation (issue 3) ----
+# ---- solvers and motion estimation ----
 
 MAX_DIHEDRAL_DIFFERENCE_1L2P: float
 
@@ -63,7 +63,7 @@ def _ransac_translation_2d(points_a: npt.ArrayLike, points_b: npt.ArrayLike, dir
                            min_iterations: int = 0, confidence: float = 0.999, seed: int = 0
                            ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
 
-# ---- scan features (issue 4) ----
+# ---- scan features ----
 
 # Range image dicts: points (H, W, 3) float64 with NaN holes, valid (H, W) bool, source_index (H, W) int32
 # (organize_points only), stats (input/kept/invalid/out_of_range/outside_rows/cell_collisions, row_method).
@@ -80,7 +80,7 @@ def extract_features(range_image: npt.ArrayLike, config: dict[str, float | int |
 def feature_config(preset: str = "kitti") -> dict[str, float]: ...
 def sensor_presets() -> list[str]: ...
 
-# ---- odometry pipeline (issue 4) ----
+# ---- odometry pipeline ----
 
 class FrameResult:
     """One registered frame, as returned by Odometry.register_*.

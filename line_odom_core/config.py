@@ -150,7 +150,7 @@ _ENTRIES: list[ConfigEntry] = [
                 "observes every direction of the result (1 = the last scan only, paper §6.3)", 1, 10),
     ConfigEntry("registration.first_motion_pairs_per_line", int, 0, "while there is no motion guess (the first "
                 "motion after start or reset, searched from standing still), keep the k closest partners of each line "
-                "within candidates.max_distance (0 = all of them, as in the paper; KITTI: 8, at half the cost)", 0,
+                "within candidates.max_distance (0 = all of them, as in the paper)", 0,
                 100000),
     ConfigEntry("registration.min_inliers", int, 12, "fewer inlier pairs than this: registration failed, the "
                 "motion model's prediction is held", 0, 1000000),
@@ -175,8 +175,7 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("registration.min_inlier_ratio", float, 0.3, "the estimate is degenerate (the prediction is held) "
                 "unless the share of the last pass's candidate line pairs that meet within the inlier threshold is "
                 "shown to exceed this (by 2 binomial standard deviations): otherwise the lines are too noisy to fix "
-                "the motion (measured: >= 0.38 on KITTI and TUM fr1/xyz, 0.11-0.26 on a simulated street with "
-                "0.2-0.5 m range noise; 0 = off)", 0.0, 1.0),
+                "the motion (0 = off; docs/RESULTS.md, 'Preset choices')", 0.0, 1.0),
     ConfigEntry("registration.max_prediction_gap", float, 1.0, "a stamp gap longer than this (s) drops the "
                 "velocity: the motion is found afresh as after a reset instead of extrapolated", 1e-3, 3600.0),
     ConfigEntry("registration.min_sample_pair_share", float, 0.95, "a RANSAC sample replaces the refined guess "
@@ -208,11 +207,11 @@ _ENTRIES: list[ConfigEntry] = [
                 "reported when the prediction is held", 0.0, 1000.0),
     ConfigEntry("registration.fallback_rotation_sigma_deg", float, 5.0, "1-sigma rotation uncertainty (deg) "
                 "reported when the prediction is held", 0.0, 180.0),
-    # --- point-to-plane refinement (beyond the paper; docs/RESULTS.md, session 18) ---
+    # --- point-to-plane refinement (beyond the paper; docs/RESULTS.md, "Preset choices") ---
     ConfigEntry("points.weight", float, 0.0, "information (1/m^2) of one point-to-plane residual of this scan's "
                 "voxel means against the previous scan's voxel planes, refined jointly with the lines' estimate (as a "
                 "Gaussian of its covariance) after the registration; dense scans only: on sparse ones the voxels' "
-                "planes are poor (KITTI at 1/36 loses). 0 = off (the paper's method)", 0.0, 1e6),
+                "planes are poor. 0 = off (the paper's method)", 0.0, 1e6),
     ConfigEntry("points.max_downsample", int, 1, "the refinement runs only while downsample is at most this step "
                 "(the weight is measured at full resolution; sparser scans lose with it: docs/RESULTS.md)", 1, 1000),
     ConfigEntry("points.voxel", float, 1.0, "both scans are binned in cubes of this size (m): this scan's voxel "
@@ -227,6 +226,29 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("points.max_translation", float, 0.1, "a refinement moving the lines' estimate further than this (m) "
                 "is not taken", 0.0, 10.0),
     ConfigEntry("points.max_rotation_deg", float, 0.5, "... or turning it more than this (deg)", 0.0, 180.0),
+    # --- the points' check of each motion (beyond the paper; docs/NODE.md, "Checked by the points") ---
+    ConfigEntry("evidence.enabled", bool, False, "check each frame's motion against this scan's points on the planes "
+                "of a local map of the last registered scans; a motion they significantly contradict is flagged "
+                "(degenerate, the fallback covariance)", None, None),
+    ConfigEntry("evidence.voxel", float, 1.0, "the local map's cubes (m): each holds the plane of its points", 0.01,
+                10.0),
+    ConfigEntry("evidence.map_scans", int, 10, "registered scans kept in the local map", 1, 100),
+    ConfigEntry("evidence.map_points", int, 40000, "points the local map keeps, spread evenly over its scans", 100,
+                10000000),
+    ConfigEntry("evidence.max_points", int, 4000, "of this scan's points checked, spread evenly over the scan", 100,
+                10000000),
+    ConfigEntry("evidence.min_points", int, 5, "points a map voxel needs for its plane", 3, 1000000),
+    ConfigEntry("evidence.min_planarity", float, 0.1, "a map voxel is flat enough when (l1 - l0) / l2 of its points' "
+                "scatter's eigenvalues reaches this", 0.0, 1.0),
+    ConfigEntry("evidence.inlier_distance", float, 0.1, "a point this close (m) to its map voxel's plane supports the "
+                "motion; motions closer than this are not told apart", 1e-4, 10.0),
+    ConfigEntry("evidence.iterations", int, 10, "Gauss-Newton steps of each point fit", 1, 100),
+    ConfigEntry("evidence.significance", float, 3.0, "McNemar's z over the points only one of two motions supports "
+                "above which the points prefer the other motion", 1e-3, 100.0),
+    ConfigEntry("evidence.min_matches", int, 200, "checked points on the map's planes below which the points tell "
+                "nothing", 1, 10000000),
+    ConfigEntry("evidence.search_range", float, 3.0, "metres searched either way along the translations the lines "
+                "leave unobserved", 0.0, 100.0),
 ]
 
 CHOICES: dict[str, tuple[str, ...]] = {"ransac.solver": ("auto", "7L", "3L1P", "1L2P"),

@@ -13,6 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import accuracy  # noqa: E402
+from line_odom.datasets import SHARED_DATA  # noqa: E402
 
 
 def _run(*args: str) -> str:
@@ -23,10 +24,40 @@ def _run(*args: str) -> str:
 
 def test_accuracy_prints_the_tum_rows_and_the_clock_table():
     out = _run("bench/accuracy.py", "--only", "tum", "--tum-frames", "12", "--tum-levels", "10", "--no-kiss")
-    assert "tum   fr1/xyz 1/100  12 |" in out and "<= 5.0 mm, 0.52 deg:" in out
+    assert "tum   fr1/xyz     1/100  12 |" in out and "<= 5.05 mm, 0.52 deg:" in out
     clock = out[out.index("TUM with the ground truth at the depth stamp + offset"):].splitlines()
     offsets = [line.split()[1] for line in clock[2:] if line.startswith("1/100")]
     assert offsets == ["0", "-20", "-30", "-40", "-50", "-60"]
+
+
+def test_accuracy_runs_a_directory_in_the_kitti_layout_with_flagged_and_gross_frames(tmp_path):
+    """--data DIR: a user's own sequence (here the stop-and-go drive's first scans, its reference poses renamed to the
+    file a user would have), run as the shared sequences are; the row counts flagged and unflagged gross frames."""
+    source = SHARED_DATA / "kitti_raw_stop_and_go"
+    run = tmp_path / "my_drive"
+    (run / "velodyne").mkdir(parents=True)
+    for i in range(4):
+        (run / "velodyne" / f"{i:06d}.bin").symlink_to(source / "velodyne" / f"{i:06d}.bin")
+    (run / "times.txt").write_text("".join(f"{0.1 * i:.1f}\n" for i in range(4)))
+    (run / "calib.txt").write_text((source / "calib.txt").read_text())
+    (run / "reference_poses.txt").write_text("".join((source / "reference_poses.txt").read_text().splitlines(True)[:4]))
+    out = _run("bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--data", str(run), "--kitti-levels", "6",
+               "--kitti-beams", "--kitti-frames", "4", "--no-kiss")
+    rows = [line for line in out.splitlines() if line.startswith("kitti my_drive") and "1/36" in line]
+    assert rows, out
+    flagged, gross = rows[-1].split("|")[1].split()[-2:]
+    assert int(flagged) >= 0 and int(gross) >= 0
+    assert any(line.startswith("kitti 07") for line in out.splitlines())
+
+
+def test_accuracy_refuses_a_directory_without_poses(tmp_path):
+    (tmp_path / "velodyne").mkdir()
+    source = SHARED_DATA / "kitti_raw_stop_and_go" / "velodyne" / "000000.bin"
+    (tmp_path / "velodyne" / "000000.bin").symlink_to(source)
+    proc = subprocess.run([sys.executable, "bench/accuracy.py", "--only", "kitti", "--kitti", str(tmp_path),
+                           "--kitti-levels", "6", "--kitti-beams", "--no-kiss"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode != 0 and "reference_poses.txt" in proc.stderr + proc.stdout
 
 
 def test_paired_table_says_which_differences_the_frames_resolve(capsys):

@@ -24,14 +24,7 @@ NOTEBOOK = re.compile(r"\b(session|issue)s?[ -]?#?[0-9]+", re.IGNORECASE)
 DATE = re.compile(r"\b20[0-9]{2}-[01][0-9]-[0-3][0-9]\b(?! [0-9]{2}:[0-9]{2}:)")  # not a data format's stamp
 # Files another owner is still cleaning of "session N" / "issue N" (the C++ engine and its bindings). The test fails
 # when one of them is clean, so the list only shrinks.
-PENDING_NOTEBOOK = {
-    "line_odom_core/_core.pyi",
-    "line_odom_core/config.py",
-    "line_odom_core/cpp/bindings.cpp",
-    "line_odom_core/cpp/deskew.hpp",
-    "line_odom_core/cpp/odometry.cpp",
-    "line_odom_core/cpp/point_refine.hpp",
-}
+PENDING_NOTEBOOK: set[str] = set()
 
 
 def _repository_files() -> list[str]:

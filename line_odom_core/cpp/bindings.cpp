@@ -51,7 +51,7 @@ py::dict build_info() {
 
 }  // namespace
 
-// ---- solver bindings helpers (issue 3, solvers) ----
+// ---- solver bindings helpers (solvers) ----
 namespace solver_bindings {
 
 std::string shape_text(const std::vector<py::ssize_t>& shape) {
@@ -236,7 +236,7 @@ py::dict benchmark_solver(const std::string& solver, int instances, int repetiti
 
 }  // namespace solver_bindings
 
-// ---- motion estimation bindings helpers (issue 3, ransac) ----
+// ---- motion estimation bindings helpers (ransac) ----
 #include <algorithm>
 #include <limits>
 
@@ -574,7 +574,7 @@ py::tuple translation_2d(py::handle points_a, py::handle points_b, py::handle di
 }  // namespace motion_bindings
 
 
-// ---- scan features helpers (issue 4, features) ----
+// ---- scan features helpers (features) ----
 #include <memory>
 
 #include "feature_extraction.hpp"
@@ -808,7 +808,7 @@ py::dict feature_config_py(const std::string& preset) {
 
 }  // namespace feature_bindings
 
-// ---- odometry pipeline helpers (issue 4, registration) ----
+// ---- odometry pipeline helpers (registration) ----
 #include <memory>
 #include <optional>
 #include <variant>
@@ -846,6 +846,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   ms["candidates"] = s.ms.candidates;
   ms["ransac"] = s.ms.ransac;
   ms["points"] = s.ms.points;
+  ms["evidence"] = s.ms.evidence;
   ms["total"] = s.ms.total;
   py::dict d;
   d["solver"] = s.solver;
@@ -881,6 +882,10 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["deskewed_again"] = s.deskewed_again;
   d["points_refined"] = s.points_refined;
   d["point_matches"] = s.point_matches;
+  d["evidence"] = s.evidence;
+  d["evidence_matches"] = s.evidence_matches;
+  d["evidence_inliers"] = s.evidence_inliers;
+  d["evidence_z"] = s.evidence_z;
   d["ms"] = ms;
   return d;
 }
@@ -1085,7 +1090,7 @@ PYBIND11_MODULE(_core, m) {
   m.attr("__version__") = LINE_ODOM_VERSION;
   m.def("build_info", &build_info, "Compiler, flags, C++ standard, Eigen and pybind11 versions of this build.");
 
-  // ---- solvers and motion estimation (issue 3) ----
+  // ---- solvers and motion estimation ----
   m.attr("MAX_DIHEDRAL_DIFFERENCE_1L2P") = line_odom::kMaxDihedralDifference1L2P;
   m.def("solve_1l2p", &solver_bindings::solve_1l2p, py::arg("line_a"), py::arg("line_b"), py::arg("planes_a"),
         py::arg("planes_b"), py::kw_only(), py::arg("max_dihedral_difference") = line_odom::kMaxDihedralDifference1L2P,
@@ -1132,7 +1137,7 @@ PYBIND11_MODULE(_core, m) {
         "Test hook: the hybrid RANSAC (ransac.hpp) estimating a 2D translation from point pairs (solver 0, one\n"
         "pair) and scalar projections u.t = o (solver 1, two projections).");
 
-  // ---- scan features (issue 4) ----
+  // ---- scan features ----
   m.def("organize_points", &feature_bindings::organize_points_py, py::arg("points"), py::arg("ring") = py::none(),
         py::arg("sensor") = "hdl64", py::arg("min_range") = 0.0, py::arg("max_range") = 1e9,
         py::arg("downsample") = 1, py::arg("downsample_while_organizing") = false,
@@ -1153,7 +1158,7 @@ PYBIND11_MODULE(_core, m) {
         "Feature parameters of a preset by dotted name.");
   m.def("sensor_presets", &line_odom::sensor_preset_names, "Names accepted by organize_points(sensor=...).");
 
-  // ---- odometry pipeline (issue 4) ----
+  // ---- odometry pipeline ----
   {
     using line_odom::FrameResult;
     using line_odom::Odometry;

@@ -37,7 +37,7 @@ void deskew_image(RangeImage* image, const double* time, const SweepVelocity& ve
 
 // Moves the features of a scan deskewed at sweep.velocity to where deskewing at `target` would have put them: each
 // line's ends by the difference at their columns' times, planes at mid-sweep (the difference is millimetres, a rigid
-// motion per column's time: fitting again gave the same errors, docs/RESULTS.md sessions 16 and 17).
+// motion per column's time: fitting again gave the same errors, docs/RESULTS.md, "Deskew").
 void move_features(ScanFeatures* features, const SweepTimes& sweep, const SweepVelocity& target);
 
 // Mean time of every `step`-th column of `image` (the columns of downsample(image, step)), NaN where it has no point;

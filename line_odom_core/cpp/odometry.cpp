@@ -26,7 +26,8 @@ constexpr double kRivalRotation = 0.5 * kPi / 180.0;  // first motions closer th
                                                       // are one
 constexpr double kUnmeasuredCosine = 0.5;  // a direction not measured stays so while the held directions reach within
                                            // 60 deg of it (they wobble between x and pitch on KITTI 04 at 1/64)
-constexpr int kRoundsAgain = 2;  // candidates re-associated and refined after a sweep is deskewed again
+constexpr int kRoundsAgain = 2;
+constexpr double kEvidenceLever = 20.0;  // m: a rotation's reach at the distance most of a scan's points lie within  // candidates re-associated and refined after a sweep is deskewed again
 
 // The caller's motion guess: finite, with an orthonormal rotation of determinant +1.
 // A finite orthonormal matrix with determinant +1.
@@ -52,11 +53,6 @@ void check_rotation_guess(const Mat3* rotation_guess, const RigidTransform* gues
                                 "determinant +1)");
 }
 
-// An estimate of every direction of the motion (none held at the prediction).
-bool registered_in_full(const PassOutcome& outcome) {
-  return outcome.have && !outcome.stats.degenerate && outcome.held_directions == 0 &&
-         outcome.stats.covariance.allFinite();
-}
 
 // The prediction turned by `R` instead of its own rotation, its translation along the same body-frame velocity: a
 // constant velocity turning at rate w moves the sensor by about exp(w dt / 2) v dt, so the translation turns by the
@@ -94,10 +90,6 @@ Mat6 motion_covariance(double translation_sigma, double rotation_sigma) {
   return covariance;
 }
 
-double rotation_angle(const Mat3& R) {
-  const double c = std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0);
-  return std::acos(c);
-}
 
 const char* solver_name(int solver) {
   switch (solver) {
@@ -116,7 +108,43 @@ std::uint64_t mix_seed(std::uint64_t seed, std::uint64_t frame, std::uint64_t pa
   return z ^ (z >> 31);
 }
 
+// Whether any point of the cloud is finite and within the range limits.
+template <typename Scalar>
+bool any_in_range(const Scalar* data, std::size_t count, std::size_t stride, const RangeLimits& limits) {
+  for (std::size_t i = 0; i < count; ++i) {
+    const Vec3 p(data[i * stride], data[i * stride + 1], data[i * stride + 2]);
+    const double r = p.norm();
+    if (std::isfinite(r) && r >= limits.min_range && r <= limits.max_range) return true;
+  }
+  return false;
+}
+
+// A scan the sensor model organizes into fewer rows than a V-line needs points (a 2D laser's single ring, a cloud of
+// another sensor; also one whose points all lie in rows the downsampling drops) cannot be registered: refused at any
+// frame before it touches the odometry's state. A scan with no point in range is held as a failed registration.
+template <typename Scalar>
+void check_fills_rows(const RangeImage& image, const Scalar* data, std::size_t count, std::size_t stride,
+                      const RangeLimits& limits, const SensorModel& sensor, int min_points_v) {
+  int rows = 0;
+  for (int r = 0; r < image.rows; ++r)
+    for (int c = 0; c < image.cols; ++c)
+      if (image.is_valid(r, c)) {
+        ++rows;
+        break;
+      }
+  if (rows >= min_points_v || (rows == 0 && !any_in_range(data, count, stride, limits))) return;
+  throw std::invalid_argument("xyz: the cloud's points fill " + std::to_string(rows) + " of the " +
+                              std::to_string(image.rows) + " rows the sensor model '" + sensor.name +
+                              "' keeps of it; a scan needs points in at least lines.min_points_v = " +
+                              std::to_string(min_points_v) + " rows (a 2D laser or another sensor's cloud?)");
+}
+
 }  // namespace
+
+bool registered_in_full(const PassOutcome& outcome) {
+  return outcome.have && !outcome.stats.degenerate && outcome.held_directions == 0 &&
+         outcome.stats.covariance.allFinite();
+}
 
 RigidTransform scale_motion(const RigidTransform& T, double alpha) {
   Eigen::AngleAxisd aa(T.R);
@@ -150,6 +178,20 @@ Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make
     throw std::invalid_argument("registration.window: expected 1 to 10 scans, got " +
                                 std::to_string(config_.registration.window));
   window_ = FeatureWindow(config_.registration.window);
+  const EvidenceOptions& ev = config_.evidence;
+  if (!(ev.voxel >= 0.01)) throw std::invalid_argument("evidence.voxel: expected >= 0.01 m");
+  if (ev.map_scans < 1 || ev.map_scans > 100) throw std::invalid_argument("evidence.map_scans: expected 1 to 100");
+  if (ev.map_points < 100) throw std::invalid_argument("evidence.map_points: expected >= 100");
+  if (ev.max_points < 100) throw std::invalid_argument("evidence.max_points: expected >= 100");
+  if (ev.min_points < 3) throw std::invalid_argument("evidence.min_points: expected >= 3 (a plane)");
+  if (!(ev.min_planarity >= 0.0 && ev.min_planarity <= 1.0))
+    throw std::invalid_argument("evidence.min_planarity: expected 0 to 1");
+  if (!(ev.inlier_distance > 0.0)) throw std::invalid_argument("evidence.inlier_distance: expected > 0 m");
+  if (ev.iterations < 1) throw std::invalid_argument("evidence.iterations: expected >= 1");
+  if (!(ev.significance > 0.0)) throw std::invalid_argument("evidence.significance: expected > 0");
+  if (ev.min_matches < 1) throw std::invalid_argument("evidence.min_matches: expected >= 1");
+  if (!(ev.search_range >= 0.0)) throw std::invalid_argument("evidence.search_range: expected >= 0 m");
+  local_map_ = LocalMap(ev.map_scans, ev.map_points, ev.voxel);
   const PointRefineOptions& pts = config_.points;
   if (!(pts.weight >= 0.0)) throw std::invalid_argument("points.weight: expected >= 0 (0: off)");
   if (!(pts.voxel >= 0.01)) throw std::invalid_argument("points.voxel: expected >= 0.01 m");
@@ -194,6 +236,7 @@ void Odometry::reset(const RigidTransform& pose) {
   have_prev_sweep_ = false;
   registered_velocities_.clear();
   prev_surface_ = SurfaceMap{};
+  local_map_.clear();
 }
 
 RigidTransform Odometry::predict(double stamp, Vec6* persistence) const {
@@ -241,6 +284,8 @@ FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
       organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
+  if (frames_ > 0)
+    check_fills_rows(image, data, count, stride, config_.sensor.limits, sensor_, config_.features.lines.min_points_v);
   return register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
 }
 
@@ -280,6 +325,8 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   RangeImage image = rows > 0 ? organize_cloud(data, rows, cols, stride, config_.sensor.limits)
                               : organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits,
                                                             step);
+  if (rows == 0 && frames_ > 0)
+    check_fills_rows(image, data, count, stride, config_.sensor.limits, sensor_, config_.features.lines.min_points_v);
   SweepTimes sweep;
   sweep.velocity = sweep_velocity(stamp, guess, rotation_guess, sweep_rate);
   if (count > 0) {
@@ -336,8 +383,8 @@ bool Odometry::deskew_previous_again(const SweepVelocity& velocity) {
 // registration knows better than the prediction it was deskewed at when the velocity changed (a turn reversed, a
 // vehicle braking); after the stamp it moves at the next frame's, which no registration knows yet. So the part of a
 // sweep before its stamp is compared (a sweep stamped at its start has none: iterating those did not help,
-// docs/RESULTS.md, Session 17), and both scans of the pair are corrected alike at the registered velocity (the previous
-// scan at its own registered motion fed each frame's error into the next, Session 17).
+// docs/RESULTS.md, "Deskew"), and both scans of the pair are corrected alike at the registered velocity (the previous
+// scan at its own registered motion fed each frame's error into the next).
 bool Odometry::corrected_alike(const SweepVelocity& a, const SweepVelocity& b, double first, double last) const {
   constexpr double kLever = 20.0;  // m: a point this far away stands for the scan's lines (most lie within 20 m)
   return deskew_difference(a, b, first, last, kLever) <= config_.sensor.deskew_tolerance;
@@ -417,6 +464,114 @@ PassOutcome Odometry::register_again(const ScanFeatures& cur, const RigidTransfo
   out.best = T;
   out.have = true;
   return out;
+}
+
+namespace {
+
+// Translation and rotation (at kEvidenceLever) between two motions, in metres.
+double motion_distance(const RigidTransform& a, const RigidTransform& b) {
+  const RigidTransform d = a.inverse() * b;
+  return d.t.norm() + kEvidenceLever * rotation_angle(d.R);
+}
+
+// Every `step`-th valid point of the image, at most `budget` of them.
+std::vector<Vec3> spread_points(const RangeImage& image, int budget) {
+  const std::size_t valid = static_cast<std::size_t>(std::count(image.valid.begin(), image.valid.end(), 1));
+  const std::size_t step = std::max<std::size_t>(1, (valid + budget - 1) / std::max(1, budget));
+  std::vector<Vec3> out;
+  out.reserve(valid / step + 1);
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < image.points.size(); ++i)
+    if (image.valid[i] && k++ % step == 0) out.push_back(image.points[i]);
+  return out;
+}
+
+// The unit translations along which `outcome` holds the prediction (its held directions), or, when it registered
+// nothing, the prediction's own direction of travel and the horizontal axes of the sensor.
+std::vector<Vec3> unobserved_translations(const PassOutcome& outcome, const RigidTransform& prediction) {
+  std::vector<Vec3> axes;
+  auto add = [&axes](const Vec3& v) {
+    if (v.norm() < 0.3) return;  // mostly a rotation
+    const Vec3 u = v.normalized();
+    for (const Vec3& a : axes)
+      if (std::abs(a.dot(u)) > 0.9) return;
+    axes.push_back(u);
+  };
+  if (outcome.have && outcome.held_directions > 0) {
+    const Eigen::SelfAdjointEigenSolver<Mat6> es(outcome.held_projector);
+    for (int k = 0; k < 6; ++k)
+      if (es.eigenvalues()(k) > 0.5) add(es.eigenvectors().col(k).head<3>());
+  } else if (!outcome.have) {
+    if (prediction.t.norm() > 1e-3) add(prediction.t);
+    add(Vec3::UnitX());
+    add(Vec3::UnitY());
+  }
+  return axes;
+}
+
+}  // namespace
+
+// The lines' outcome is checked on evidence they did not produce: this scan's points on the local map's planes. Each
+// of the lines' motion, the prediction and standing still starts a point fit (and, where the lines leave translations
+// unobserved, the best-supported shift along them); the fit whose points' support gains most over the lines' motion
+// (McNemar's test, support_gain) contradicts it when the gain is significant for the number of motions compared and
+// the two are farther apart than the points resolve (evidence.inlier_distance). A contradicted frame keeps its
+// motion and is flagged: on a sparse scan the points' fit can slide along a street as the lines' can, so it is no
+// motion to take instead.
+void Odometry::check_with_points(const ScanFeatures& cur, const std::vector<Vec3>& points,
+                                 const RigidTransform& prediction, PassOutcome* outcome, FrameStats* st) {
+  const EvidenceOptions& ev = config_.evidence;
+  SurfaceMap& map = local_map_.surface();
+  const RigidTransform reference_motion = outcome->have ? outcome->best : prediction;
+  const PointSupport reference = point_support(map, points, reference_motion, ev);
+  st->evidence_matches = reference.matched;
+  st->evidence_inliers = reference.inliers;
+  if (reference.matched < ev.min_matches) {
+    st->evidence = "no_map";
+    return;
+  }
+
+  std::vector<RigidTransform> starts{reference_motion, prediction, RigidTransform::identity()};
+  const double step = 0.5 * ev.voxel;  // a fit reaches about half a voxel
+  const int steps = static_cast<int>(std::floor(ev.search_range / step));
+  int compared = 0;  // motions whose gain over the lines' was measured, the best of which is tested
+  for (const Vec3& u : unobserved_translations(*outcome, prediction)) {
+    compared += 2 * steps;
+    RigidTransform best_shift = reference_motion;
+    double best_gain = 0.0;
+    for (int k = -steps; k <= steps; ++k) {
+      if (k == 0) continue;
+      RigidTransform shifted = reference_motion;
+      shifted.t += (k * step) * u;
+      const double gain = support_gain(points, reference, point_support(map, points, shifted, ev));
+      if (gain > best_gain) best_gain = gain, best_shift = shifted;
+    }
+    starts.push_back(best_shift);
+  }
+  PointSupport best;
+  double best_gain = -1e300;
+  for (std::size_t i = 0; i < starts.size(); ++i) {
+    bool repeated = false;
+    for (std::size_t j = 0; j < i; ++j) repeated = repeated || motion_distance(starts[i], starts[j]) < 1e-6;
+    if (repeated) continue;
+    ++compared;
+    PointSupport fit = fit_points(map, points, starts[i], ev);
+    const double gain = support_gain(points, reference, fit);
+    if (gain > best_gain) best_gain = gain, best = std::move(fit);
+  }
+  st->evidence_z = best_gain;
+  // The best of `compared` gains is tested: the one-sided tail p ~ phi(z) / z divided among them (Bonferroni) raises
+  // z^2 by about 2 ln(compared).
+  const double threshold = std::sqrt(ev.significance * ev.significance + 2.0 * std::log(std::max(1, compared)));
+  if (best_gain <= threshold || motion_distance(best.T, reference_motion) <= ev.inlier_distance) {
+    st->evidence = "agrees";
+    return;
+  }
+  char z[32];
+  std::snprintf(z, sizeof z, "%.1f", best_gain);
+  st->evidence = "contradicted";
+  st->failure = std::string("the local map's points support another motion (McNemar z ") + z + " > " +
+                std::to_string(threshold).substr(0, 4) + ", evidence.significance for the motions compared)";
 }
 
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
@@ -807,6 +962,9 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     st.ms.features += stage.ms();
   }
 
+  std::vector<Vec3> checked_points;  // this scan's, for the local map's check (evidence.*)
+  if (config_.evidence.enabled) checked_points = spread_points(*input, config_.evidence.max_points);
+
   SurfaceMap surface;  // this scan's, for the point-to-plane refinement (points.weight)
   if (points_refining()) {
     stage = Stopwatch();
@@ -859,6 +1017,11 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     // yaw-flip drive with a gyro 5 deg off; a gyro turned the wrong way, 24 frames: 8.4 -> 0.23 deg mean, NODE.md)
     if (!first_motion_frame) st.turn_recovered = search_turn(prev_features_, features, prediction, &outcome, &st);
     if (sweep != nullptr) st.deskewed_again = deskew_at_registered(&features, sweep, dt, prediction, &outcome, &st);
+    if (config_.evidence.enabled && !local_map_.empty()) {
+      stage = Stopwatch();
+      check_with_points(features, checked_points, prediction, &outcome, &st);
+      st.ms.evidence += stage.ms();
+    }
     const RigidTransform& best = outcome.best;
     const MotionStats& best_stats = outcome.stats;
     const bool have = outcome.have;
@@ -942,7 +1105,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
         const PointRefineResult refined =
             refine_with_points(surface, prev_surface_, result.delta, result.covariance, config_.points);
         // The lines' covariance stays: the voxels' residuals share their surfaces' errors, and their information
-        // added in made KITTI 04's NEES/6 2.2 (docs/RESULTS.md, session 18).
+        // added in made KITTI 04's NEES/6 2.2 (docs/RESULTS.md, "Covariance").
         if (refined.applied) result.delta = refined.T;
         st.points_refined = refined.applied;
         st.point_matches = refined.matched;
@@ -950,6 +1113,10 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
       }
       st.solver = solver_name(best_stats.best_solver);
       st.registered = true;
+      if (st.evidence == "contradicted") {  // flagged, with no more confidence than a held prediction
+        st.degenerate = true;
+        result.covariance = result.covariance.cwiseMax(motion_covariance(ts, rs));
+      }
     } else {
       if (have && failure.empty()) failure = "degenerate constraints (ill-conditioned refinement)";
       result.delta = prediction;
@@ -999,6 +1166,12 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     have_velocity_ = true;
   }
 
+  if (config_.evidence.enabled) {
+    stage = Stopwatch();
+    if (st.registered && !st.degenerate) local_map_.add(spread_points(*input, config_.evidence.map_points), pose_);
+    else if (!local_map_.empty()) local_map_.anchor(pose_);
+    st.ms.evidence += stage.ms();
+  }
   if (points_refining()) prev_surface_ = std::move(surface);
   if (config_.registration.window > 1) window_.push(features, result.delta, st.registered && !st.degenerate);
   prev_features_ = std::move(features);

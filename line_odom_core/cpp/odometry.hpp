@@ -1,4 +1,4 @@
-// Frame-to-frame odometry with state (DESIGN.md §2): organize -> downsample -> features -> predict (constant
+// Frame-to-frame odometry with state (docs/DESIGN.md §2): organize -> downsample -> features -> predict (constant
 // velocity) -> candidates -> hybrid RANSAC + refinement, 3 passes each seeded with the best estimate so far
 // (paper §6.3) -> compose the pose. A failed or degenerate registration holds the prediction, inflates the
 // covariance and says so in the stats; the pose is never NaN.
@@ -24,6 +24,8 @@
 #include "range_image.hpp"
 #include "scan_features.hpp"
 #include "types.hpp"
+#include "validation/local_map.hpp"
+#include "validation/point_evidence.hpp"
 #include "worker_pool.hpp"
 
 namespace line_odom {
@@ -92,12 +94,14 @@ struct OdometryConfig {
   MotionOptions ransac;
   RegistrationOptions registration;
   PointRefineOptions points;  // points.*: the point-to-plane refinement (point_refine.hpp)
+  EvidenceOptions evidence;   // evidence.*: each motion checked against the local map's points (point_evidence.hpp)
 };
 
 struct StageMilliseconds {
   double organize = 0, downsample = 0, features = 0, candidates = 0, ransac = 0, total = 0;
   double lines = 0, normals = 0, planes = 0;  // parts of features
   double points = 0;  // the point-to-plane refinement, its surface built for the next frame included
+  double evidence = 0;  // checking the motion against the local map, and updating the map
   double deskew = 0;  // correcting both scans' sweeps (before the registration: part of organize; after it, at the
                       // registered motion: besides the stages)
 };
@@ -138,6 +142,14 @@ struct FrameStats {
                            // (sensor.deskew_iterations)
   bool points_refined = false;  // the point-to-plane refinement (points.weight) moved the lines' estimate
   int point_matches = 0;        // ... with this many of the scan's voxel means on a planar voxel of the previous scan
+  // The points' verdict on the frame's motion (evidence.*): "agrees", "contradicted" (the points support another
+  // motion significantly more: the frame is flagged, degenerate with the fallback covariance), "no_map" (too few
+  // points on the map's planes to tell), "off"
+  std::string evidence = "off";
+  int evidence_matches = 0;     // this scan's checked points on a planar voxel of the local map, at the frame's motion
+  int evidence_inliers = 0;     // ... within evidence.inlier_distance of it
+  double evidence_z = 0.0;      // McNemar's z of the points' best motion over the lines' (> evidence.significance:
+                                // the lines' motion is contradicted)
   StageMilliseconds ms;
 };
 
@@ -162,6 +174,9 @@ struct PassOutcome {
   bool have_rival = false;
   RigidTransform rival;
 };
+
+// An estimate of every direction of the motion (none held at the prediction).
+bool registered_in_full(const PassOutcome& outcome);
 
 class Odometry {
  public:
@@ -313,6 +328,10 @@ class Odometry {
   bool adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                        const RigidTransform& held, const RigidTransform& start, PassOutcome* outcome,
                        FrameStats* st) const;
+  // The points' check of the lines' outcome (point_evidence.hpp): st->evidence "contradicted" when the local map's
+  // points support another motion significantly more; `points`: this scan's checked points.
+  void check_with_points(const ScanFeatures& cur, const std::vector<Vec3>& points, const RigidTransform& prediction,
+                         PassOutcome* outcome, FrameStats* st);
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
   // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
   double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
@@ -340,6 +359,7 @@ class Odometry {
   std::deque<SweepVelocity> registered_velocities_;  // of the last sensor.deskew_trend frames, newest first
   bool have_prev_sweep_ = false;
   SurfaceMap prev_surface_;  // the previous scan's surface (points.weight > 0)
+  LocalMap local_map_;       // the last registered scans' points, in the previous scan's frame (evidence.*)
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
 

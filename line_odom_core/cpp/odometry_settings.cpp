@@ -81,6 +81,18 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("points.iterations", c.points.iterations);
   visit("points.max_translation", c.points.max_translation);
   visit("points.max_rotation_deg", c.points.max_rotation_deg);
+  visit("evidence.enabled", c.evidence.enabled);
+  visit("evidence.voxel", c.evidence.voxel);
+  visit("evidence.map_scans", c.evidence.map_scans);
+  visit("evidence.map_points", c.evidence.map_points);
+  visit("evidence.max_points", c.evidence.max_points);
+  visit("evidence.min_points", c.evidence.min_points);
+  visit("evidence.min_planarity", c.evidence.min_planarity);
+  visit("evidence.inlier_distance", c.evidence.inlier_distance);
+  visit("evidence.iterations", c.evidence.iterations);
+  visit("evidence.significance", c.evidence.significance);
+  visit("evidence.min_matches", c.evidence.min_matches);
+  visit("evidence.search_range", c.evidence.search_range);
 }
 
 const char* const kSolverNames[] = {"auto", "7L", "3L1P", "1L2P"};

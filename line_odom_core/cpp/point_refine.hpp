@@ -1,4 +1,4 @@
-// Point-to-plane refinement of the registered motion (beyond the paper; docs/RESULTS.md, session 18): this scan's
+// Point-to-plane refinement of the registered motion (beyond the paper; docs/RESULTS.md, "Preset choices"): this scan's
 // voxel means against the planes of the previous scan's voxels (surface_map.hpp), jointly with the lines' estimate
 // taken as a Gaussian of its covariance (the frame keeps that covariance: odometry.cpp). Dense scans add many
 // surfaces the lines see little of; on sparse ones the voxels' planes are poor, and the presets keep it off there.

@@ -1,7 +1,7 @@
 // Robust least-squares refinement of T_ab on all inlier line intersections and plane pairs (the local
 // optimisation of paper §6.3 and the final estimate), on SE(3) with a left perturbation T = exp(xi) T_hat,
 // xi = (x y z rx ry rz). Residuals, all in metres:
-//   line pair:  signed distance between l_a and T l_b (DESIGN.md §3),
+//   line pair:  signed distance between l_a and T l_b (docs/DESIGN.md §3),
 //   plane pair: (n_a - R n_b) * line_threshold / plane_angle_threshold and
 //               (delta_a - delta_b') * line_threshold / plane_distance_threshold,
 // so a residual at its own threshold weighs like a line residual at the line threshold. Huber IRLS times the

@@ -1,4 +1,4 @@
-// Timing and correctness of the minimal solvers on seeded synthetic instances (DESIGN.md §6): random pose,
+// Timing and correctness of the minimal solvers on seeded synthetic instances (docs/DESIGN.md §6): random pose,
 // exact noise-free minimal sample, C++ timing loop (no Python per call), median over repetitions, and the
 // found-ground-truth rate (some returned pose within found_tolerance of the truth, max abs 4x4 entry).
 #pragma once

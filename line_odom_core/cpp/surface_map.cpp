@@ -77,33 +77,32 @@ std::uint64_t SurfaceMap::key_of(const Vec3& p) const {
   return field(p.x()) << 42 | field(p.y()) << 21 | field(p.z());
 }
 
-void SurfaceMap::build(const RangeImage& image, double voxel, int stride) {
+void SurfaceMap::begin(double voxel, std::size_t expected) {
   voxel_ = voxel;
-  stride = std::max(1, stride);
-  table_.reset(image.points.size() / (8 * stride * stride) + 16);
+  table_.reset(expected);
   origins_.clear();
   means_.clear();
   scatter_.clear();
   counts_.clear();
-  for (int r = 0; r < image.rows; r += stride) {
-    for (int c = 0; c < image.cols; c += stride) {
-      if (!image.is_valid(r, c)) continue;
-      const Vec3& p = image.at(r, c);
-      bool inserted = false;
-      const std::int32_t slot = table_.insert(key_of(p), &inserted);
-      if (inserted) {
-        origins_.push_back(p);
-        means_.push_back(Vec3::Zero());
-        scatter_.push_back(Mat3::Zero());
-        counts_.push_back(1);
-        continue;
-      }
-      const Vec3 d = p - origins_[slot];
-      means_[slot] += d;
-      scatter_[slot].noalias() += d * d.transpose();
-      ++counts_[slot];
-    }
+}
+
+void SurfaceMap::add(const Vec3& p) {
+  bool inserted = false;
+  const std::int32_t slot = table_.insert(key_of(p), &inserted);
+  if (inserted) {
+    origins_.push_back(p);
+    means_.push_back(Vec3::Zero());
+    scatter_.push_back(Mat3::Zero());
+    counts_.push_back(1);
+    return;
   }
+  const Vec3 d = p - origins_[slot];
+  means_[slot] += d;
+  scatter_[slot].noalias() += d * d.transpose();
+  ++counts_[slot];
+}
+
+void SurfaceMap::finish() {
   for (std::size_t i = 0; i < means_.size(); ++i) {
     const Vec3 offset = means_[i] / counts_[i];  // of the mean from the origin
     scatter_[i] = scatter_[i] / counts_[i] - offset * offset.transpose();  // the scatter about the mean
@@ -111,6 +110,21 @@ void SurfaceMap::build(const RangeImage& image, double voxel, int stride) {
   }
   planes_.assign(means_.size(), VoxelPlane{});
   plane_done_.assign(means_.size(), 0);
+}
+
+void SurfaceMap::build(const RangeImage& image, double voxel, int stride) {
+  stride = std::max(1, stride);
+  begin(voxel, image.points.size() / (8 * stride * stride) + 16);
+  for (int r = 0; r < image.rows; r += stride)
+    for (int c = 0; c < image.cols; c += stride)
+      if (image.is_valid(r, c)) add(image.at(r, c));
+  finish();
+}
+
+void SurfaceMap::build(const std::vector<Vec3>& points, double voxel, const RigidTransform& to_map) {
+  begin(voxel, points.size() / 8 + 16);
+  for (const Vec3& p : points) add(to_map.apply(p));
+  finish();
 }
 
 int SurfaceMap::voxel_of(const Vec3& q) const { return table_.find(key_of(q)); }

@@ -37,6 +37,8 @@ class SurfaceMap {
  public:
   // Every `stride`-th row and column of the image's valid points, binned in cubes of `voxel` metres.
   void build(const RangeImage& image, double voxel, int stride);
+  // `points` moved by `to_map`, binned in cubes of `voxel` metres.
+  void build(const std::vector<Vec3>& points, double voxel, const RigidTransform& to_map);
   bool empty() const { return means_.empty(); }
   std::size_t size() const { return means_.size(); }
   int voxel_of(const Vec3& q) const;  // the voxel holding q, -1 when empty
@@ -47,6 +49,9 @@ class SurfaceMap {
 
  private:
   std::uint64_t key_of(const Vec3& p) const;
+  void begin(double voxel, std::size_t expected);
+  void add(const Vec3& p);
+  void finish();
 
   double voxel_ = 0.5;
   VoxelTable table_;

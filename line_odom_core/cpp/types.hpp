@@ -1,6 +1,9 @@
-// Geometry types shared by the whole engine (DESIGN.md §3).
+// Geometry types shared by the whole engine (docs/DESIGN.md §3).
 // Poses T_ab map frame-b coordinates into frame a: x_a = R x_b + t.
 #pragma once
+
+#include <algorithm>
+#include <cmath>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -32,6 +35,9 @@ struct RigidTransform {
   RigidTransform operator*(const RigidTransform& o) const { return {R * o.R, R * o.t + t}; }
   bool is_finite() const { return R.allFinite() && t.allFinite(); }
 };
+
+// The angle of a rotation (rad).
+inline double rotation_angle(const Mat3& R) { return std::acos(std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0)); }
 
 // Plücker line (d, m): |d| = 1, m = p x d for any point p on the line.
 struct PluckerLine {

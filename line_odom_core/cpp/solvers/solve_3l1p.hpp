@@ -1,6 +1,6 @@
 // 3L1P minimal solver (paper §5.2): three line intersections + one plane correspondence.
 // Canonical frame: plane -> z = 0, so R = Rz(theta), t = (t1, t2, 0); det[A B C] = 0 is a quartic in
-// u = tan(theta/2) once the factor (1 + u^2) is divided out (DESIGN.md §3). At most four solutions.
+// u = tan(theta/2) once the factor (1 + u^2) is divided out (docs/DESIGN.md §3). At most four solutions.
 #pragma once
 
 #include <array>
