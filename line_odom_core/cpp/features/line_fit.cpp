@@ -9,17 +9,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "common/simd.hpp"
 #include "common/worker_pool.hpp"
-
-// Hot loops compiled twice, for AVX2 and the baseline, picked at load time. AVX2 without FMA: the same IEEE
-// operations in either clone, so the same lines on every machine.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(LINE_FIT_NO_CLONES)
-#define LINE_FIT_CLONES __attribute__((target_clones("avx2", "default")))
-#define LINE_FIT_CLONES_FLATTEN __attribute__((target_clones("avx2", "default"), flatten))
-#else
-#define LINE_FIT_CLONES
-#define LINE_FIT_CLONES_FLATTEN __attribute__((flatten))
-#endif
 
 namespace line_odom {
 
@@ -755,7 +746,7 @@ struct CellThresholds {
 };
 
 // A branch-free loop over the cells (vectorized; the same IEEE operations as Vec3::norm and threshold_scale).
-LINE_FIT_CLONES void cell_thresholds(const RangeImage& img, const LineFitConfig& cfg, CellThresholds& t) {
+LINE_ODOM_VECTOR_CLONES void cell_thresholds(const RangeImage& img, const LineFitConfig& cfg, CellThresholds& t) {
   static_assert(sizeof(Vec3) == 3 * sizeof(double), "Vec3 arrays are read as packed x, y, z");
   const size_t n = img.points.size();
   if (t.tau.size() < 2 * n) t.tau.resize(2 * n);
@@ -783,8 +774,8 @@ LINE_FIT_CLONES void cell_thresholds(const RangeImage& img, const LineFitConfig&
 }
 
 // Its own clones, called once per scan line: inlined into fit_pass it shares the registers of the whole fitter.
-__attribute__((noinline)) LINE_FIT_CLONES void fill_buffer(const RangeImage& img, const CellThresholds& th,
-                                                          bool horizontal, int index, ScanBuffer* buf) {
+__attribute__((noinline)) LINE_ODOM_VECTOR_CLONES void fill_buffer(const RangeImage& img, const CellThresholds& th,
+                                                                  bool horizontal, int index, ScanBuffer* buf) {
   const int n = horizontal ? img.cols : img.rows;
   if (static_cast<int>(buf->pos.size()) < n) {  // grow once; sizes stay at the maximum, `count` is the length
     buf->pos.resize(n);
@@ -870,7 +861,7 @@ __attribute__((noinline)) LINE_FIT_CLONES void fill_buffer(const RangeImage& img
 }
 
 // The lines of rows (horizontal) or columns [begin, end); all it calls but fill_buffer is inlined into its two clones.
-LINE_FIT_CLONES_FLATTEN void fit_pass(
+LINE_ODOM_VECTOR_CLONES_FLATTEN void fit_pass(
     const RangeImage& image, const CellThresholds& thresholds, bool horizontal, int min_points,
     ScanLineFitter& fitter, ScanBuffer& buf, std::vector<LineFeature>* out, std::vector<std::int32_t>* labels,
     int scan_step, int begin, int end) {

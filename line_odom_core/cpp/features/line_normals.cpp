@@ -7,6 +7,7 @@
 #include <string>
 
 #include "common/lent_workspace.hpp"
+#include "common/simd.hpp"
 
 namespace line_odom {
 
@@ -118,22 +119,16 @@ void robust_normal(const CrossingLists& lists, const NormalConfig& cfg, std::vec
   }
 }
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define LINE_NORMALS_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define LINE_NORMALS_CLONES
-#endif
-
 // Cells where both labels are >= 0 (then so is their bitwise or), of n.
-LINE_NORMALS_CLONES int count_both_labelled(const std::int32_t* h_label, const std::int32_t* v_label, int n) {
+LINE_ODOM_VECTOR_CLONES int count_both_labelled(const std::int32_t* h_label, const std::int32_t* v_label, int n) {
   int both = 0;
   for (int k = 0; k < n; ++k) both += (h_label[k] | v_label[k]) >= 0;
   return both;
 }
 
 // Voters (structure of arrays) within the vote cone of c, sign-folded.
-LINE_NORMALS_CLONES int count_votes(const double* vx, const double* vy, const double* vz, int voters,
-                                    double cx, double cy, double cz, double cos_vote) {
+LINE_ODOM_VECTOR_CLONES int count_votes(const double* vx, const double* vy, const double* vz, int voters,
+                                        double cx, double cy, double cz, double cos_vote) {
   int votes = 0;
   for (int j = 0; j < voters; ++j) votes += std::abs(vx[j] * cx + vy[j] * cy + vz[j] * cz) >= cos_vote;
   return votes;

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "common/lent_workspace.hpp"
+#include "common/simd.hpp"
 
 namespace line_odom {
 
@@ -101,14 +102,8 @@ class MomentLanes {
   Pair s_xy_, xx_xy_, xz_yz_, yy_zz_;
 };
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define PLANE_FIT_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define PLANE_FIT_CLONES
-#endif
-
 // Labels >= 0 of n.
-PLANE_FIT_CLONES int count_labelled(const std::int32_t* label, int n) {
+LINE_ODOM_VECTOR_CLONES int count_labelled(const std::int32_t* label, int n) {
   int labelled = 0;
   for (int c = 0; c < n; ++c) labelled += label[c] >= 0;
   return labelled;
@@ -143,9 +138,9 @@ bool line_moments_by_span(const RangeImage& image, const std::vector<LineFeature
 
 // The first j in [from, count) with alive[j] and |a . n_j| not below cos_limit (n_j = (nx, ny, nz)[j]; the
 // products summed in Eigen's order for a 3-vector dot), else count. Blocks of 16 are tested without branches.
-PLANE_FIT_CLONES size_t next_parallel(const double* nx, const double* ny, const double* nz,
-                                      const std::uint8_t* alive, size_t from, size_t count, double ax, double ay,
-                                      double az, double cos_limit) {
+LINE_ODOM_VECTOR_CLONES size_t next_parallel(const double* nx, const double* ny, const double* nz,
+                                             const std::uint8_t* alive, size_t from, size_t count, double ax,
+                                             double ay, double az, double cos_limit) {
   constexpr size_t kBlock = 16;
   for (size_t j0 = from; j0 < count; j0 += kBlock) {
     const size_t m = std::min(kBlock, count - j0);

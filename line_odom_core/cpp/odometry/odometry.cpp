@@ -12,6 +12,7 @@
 #include <string>
 #include <thread>
 
+#include "common/splitmix64.hpp"
 #include "common/stopwatch.hpp"
 #include "features/line_selection.hpp"
 #include "registration/line_pair_table.hpp"
@@ -102,10 +103,7 @@ const char* solver_name(int solver) {
 }
 
 std::uint64_t mix_seed(std::uint64_t seed, std::uint64_t frame, std::uint64_t pass) {
-  std::uint64_t z = seed + 0x9E3779B97F4A7C15ull * (frame * 16 + pass + 1);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
+  return splitmix64_mix(seed + kSplitmix64Gamma * (frame * 16 + pass + 1));
 }
 
 // A scan the sensor model organizes into fewer rows than a V-line needs points (a 2D laser's single ring, a cloud of

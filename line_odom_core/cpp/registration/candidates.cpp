@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "common/worker_pool.hpp"
+#include "common/simd.hpp"
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -265,9 +266,7 @@ inline __attribute__((always_inline)) Lanes clamp01(const Lanes& v) {
 // written to `out` with their squared box gaps; returns how many. The same sums in the same order as the scalar
 // Eigen expressions: |n_a . n_b| / (|n_a| |n_b|) < min_cos_normals (both normals known), |d_a . d_b| >
 // max_cos_lines and a box gap above box_gap reject; the squared gap is ((x^2 + y^2) + z^2).
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-__attribute__((target_clones("avx2", "default")))
-#endif
+LINE_ODOM_VECTOR_CLONES
 size_t filter_partners(const PartnerColumns& c, const int* ids, size_t count, const PartnerQuery& q, Nearby* out) {
   size_t kept = 0;
   const Lanes zero = {0.0, 0.0, 0.0, 0.0};
@@ -302,9 +301,7 @@ size_t filter_partners(const PartnerColumns& c, const int* ids, size_t count, co
 
 // span_distance of the spans `ids[0..3]` of frame a to `b`, into distances[0..3]: lane by lane the same operations
 // in the same order, the branches as selects. Requires b.d2 > 1e-18 (span_distance otherwise).
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-__attribute__((target_clones("avx2", "default")))
-#endif
+LINE_ODOM_VECTOR_CLONES
 void span_distances(const SegmentSpan* spans, const int* ids, const SegmentSpan& b, double* distances) {
   const SegmentSpan &s0 = spans[ids[0]], &s1 = spans[ids[1]], &s2 = spans[ids[2]], &s3 = spans[ids[3]];
   const Lanes zero = {0.0, 0.0, 0.0, 0.0}, one = {1.0, 1.0, 1.0, 1.0};
@@ -458,9 +455,7 @@ void measure_group(const IndexedLines& indexed, const int* ids, int count, const
 }
 
 // overlap[i] = 1 where box i (float columns lo x y z, hi x y z) reaches into `reach` (hi x y z, lo x y z).
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-__attribute__((target_clones("avx2", "default")))
-#endif
+LINE_ODOM_VECTOR_CLONES
 void mark_box_overlaps(const std::array<std::vector<float>, 6>& columns, const std::array<float, 6>& reach,
                        std::uint8_t* __restrict overlap) {
   const float* __restrict lx = columns[0].data();

@@ -2,13 +2,7 @@
 
 #include <algorithm>
 
-// An AVX2 copy of the pair loops next to the baseline one, chosen at load time, so a package built on one x86
-// machine runs on another. No "fma": contracting a*b + c would change the last bits against the scalar paths.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define LINE_ODOM_VECTOR_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define LINE_ODOM_VECTOR_CLONES
-#endif
+#include "common/simd.hpp"
 
 namespace line_odom {
 namespace {

@@ -1,4 +1,4 @@
-// Candidate line pairs as a structure of arrays, so the intersection test (docs/docs/DESIGN.md §3: l_a and T l_b meet
+// Candidate line pairs as a structure of arrays, so the intersection test (docs/DESIGN.md §3: l_a and T l_b meet
 // iff the reciprocal product d_a.m_b' + d_b'.m_a vanishes) runs under one motion over a block of pairs in a
 // vectorizable loop. RANSAC (paper §6.3) tests every hypothesis on every pair and the refinement re-tests all
 // pairs at each iterate: these loops are most of a sparse frame's time. The arithmetic is the same, in the same
@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "common/types.hpp"
-#include "registration/motion_estimation.hpp"
+#include "registration/correspondences.hpp"
 
 namespace line_odom {
 

@@ -8,20 +8,12 @@
 #include <vector>
 
 #include "common/types.hpp"
+#include "registration/correspondences.hpp"
 #include "solvers/solve_7l.hpp"
 
 namespace line_odom {
 
 enum class SolverMode { kAuto, k7L, k3L1P, k1L2P };
-
-// Row i of lines_a is a candidate intersection with row i of lines_b (frame a = previous, b = current).
-struct Correspondences {
-  std::vector<PluckerLine> lines_a, lines_b;
-  std::vector<Segment> segments_a, segments_b;  // optional (empty or same size as lines): 7L uses them
-  std::vector<double> weights;                  // optional: inlier weight per line pair (default 1)
-  std::vector<int> clusters;                    // optional: normal cluster 0..2 of the pair (-1 = none)
-  std::vector<Plane> planes_a, planes_b;        // candidate plane correspondences
-};
 
 struct MotionOptions {
   SolverMode solver = SolverMode::kAuto;

@@ -50,6 +50,8 @@
 #include <type_traits>
 #include <utility>
 
+#include "common/splitmix64.hpp"
+
 namespace line_odom {
 
 struct RansacOptions {
@@ -86,11 +88,8 @@ class RansacRng {
  public:
   explicit RansacRng(std::uint64_t seed = 0) {
     for (auto& s : state_) {
-      seed += 0x9e3779b97f4a7c15ULL;
-      std::uint64_t z = seed;
-      z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-      z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-      s = z ^ (z >> 31);
+      seed += kSplitmix64Gamma;
+      s = splitmix64_mix(seed);
     }
   }
   std::uint64_t next() {

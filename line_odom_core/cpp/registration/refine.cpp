@@ -6,12 +6,8 @@
 #include <cstdint>
 #include <vector>
 
-// An AVX2 copy of the line sums next to the baseline one, chosen at load time (line_pair_table.cpp); no "fma".
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define LINE_ODOM_VECTOR_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define LINE_ODOM_VECTOR_CLONES
-#endif
+#include "common/simd.hpp"
+#include "registration/motion_estimation.hpp"
 
 namespace line_odom {
 namespace {

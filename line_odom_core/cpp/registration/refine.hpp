@@ -11,10 +11,12 @@
 #include <array>
 
 #include "common/types.hpp"
+#include "registration/correspondences.hpp"
 #include "registration/line_pair_table.hpp"
-#include "registration/motion_estimation.hpp"
 
 namespace line_odom {
+
+struct MotionStats;  // registration/motion_estimation.hpp
 
 struct RefineOptions {
   int iterations = 10;

@@ -5,19 +5,13 @@
 #include <cmath>
 #include <limits>
 
+#include "common/splitmix64.hpp"
+
 namespace line_odom {
 
 namespace {
 constexpr std::uint64_t kEmpty = std::numeric_limits<std::uint64_t>::max();
 constexpr std::int64_t kBias = 1 << 20;  // 21 bits per axis: +-1 million voxels (+-10 km at points.voxel's 1 cm)
-
-std::uint64_t mix(std::uint64_t k) {  // splitmix64's finalizer
-  k ^= k >> 30;
-  k *= 0xbf58476d1ce4e5b9ULL;
-  k ^= k >> 27;
-  k *= 0x94d049bb133111ebULL;
-  return k ^ (k >> 31);
-}
 }  // namespace
 
 void VoxelTable::reset(std::size_t expected) {
@@ -37,14 +31,14 @@ std::int32_t VoxelTable::insert(std::uint64_t key, bool* inserted) {
     reset(keys.size());
     for (std::size_t i = 0; i < keys.size(); ++i) {
       if (keys[i] == kEmpty) continue;
-      std::uint64_t h = mix(keys[i]) & mask_;
+      std::uint64_t h = splitmix64_mix(keys[i]) & mask_;
       while (keys_[h] != kEmpty) h = (h + 1) & mask_;
       keys_[h] = keys[i];
       slots_[h] = slots[i];
     }
     size_ = size;
   }
-  std::uint64_t h = mix(key) & mask_;
+  std::uint64_t h = splitmix64_mix(key) & mask_;
   while (keys_[h] != kEmpty) {
     if (keys_[h] == key) {
       *inserted = false;
@@ -60,7 +54,7 @@ std::int32_t VoxelTable::insert(std::uint64_t key, bool* inserted) {
 
 std::int32_t VoxelTable::find(std::uint64_t key) const {
   if (keys_.empty()) return -1;
-  std::uint64_t h = mix(key) & mask_;
+  std::uint64_t h = splitmix64_mix(key) & mask_;
   while (keys_[h] != kEmpty) {
     if (keys_[h] == key) return slots_[h];
     h = (h + 1) & mask_;

@@ -9,7 +9,9 @@
 #include <stdexcept>
 #include <type_traits>
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#include "common/simd.hpp"
+
+#ifdef LINE_ODOM_X86_DISPATCH
 #include <immintrin.h>
 #endif
 
@@ -81,8 +83,7 @@ void column_and_range_scalar(const Points& pts, size_t begin, int n, double cols
   }
 }
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define RANGE_IMAGE_AVX2 1
+#ifdef LINE_ODOM_X86_DISPATCH
 bool have_avx2() {
   static const bool yes = (__builtin_cpu_init(), __builtin_cpu_supports("avx2") != 0);
   return yes;
@@ -150,7 +151,7 @@ __attribute__((target("avx2"))) void column_and_range_avx2(const Points& pts, si
 
 template <typename Points>
 void column_and_range(const Points& pts, size_t begin, int n, double cols_per_rad, double* U, double* R) {
-#ifdef RANGE_IMAGE_AVX2
+#ifdef LINE_ODOM_X86_DISPATCH
   if (have_avx2()) return column_and_range_avx2(pts, begin, n, cols_per_rad, U, R);
 #endif
   column_and_range_scalar(pts, begin, n, cols_per_rad, U, R);
@@ -319,7 +320,7 @@ BlockScan scan_block_scalar(const T* p, int n, size_t stride, bool check_first, 
   return out;
 }
 
-#ifdef RANGE_IMAGE_AVX2
+#ifdef LINE_ODOM_X86_DISPATCH
 // Bytes 0/1 of a 4-bit mask, lowest bit first in memory (little-endian).
 constexpr std::uint32_t kMaskBytes[16] = {
     0x00000000, 0x00000001, 0x00000100, 0x00000101, 0x00010000, 0x00010001, 0x00010100, 0x00010101,
@@ -436,7 +437,7 @@ __attribute__((target("avx2"))) BlockScan scan_block_avx2(const T* p, int n, siz
 template <typename T>
 BlockScan scan_block(const T* p, int n, size_t stride, bool check_first, bool prev_above, std::uint8_t* ok,
                      double* el) {
-#ifdef RANGE_IMAGE_AVX2
+#ifdef LINE_ODOM_X86_DISPATCH
   if (have_avx2()) {
     if (stride == 3) return scan_block_avx2<3>(p, n, stride, check_first, prev_above, ok, el);
     if (stride == 4 && std::is_same<T, float>::value)
