@@ -94,9 +94,28 @@ def test_engine_cpp_includes_neither_ros_nor_python_outside_the_bindings():
     include = re.compile(r'^\s*#\s*include\s*[<"]([^>"]+)[>"]', re.MULTILINE)
     forbidden = re.compile(r"^(rclcpp|rcl|rclpy|rmw|rosidl_\w+|\w+_msgs|tf2\w*|ament_\w+)/|^pybind11/|^Python\.h$")
     sources = sorted(p for p in (CORE_DIR / "cpp").rglob("*") if p.suffix in {".cpp", ".hpp", ".h", ".cc"})
-    assert any(p.name == "bindings.cpp" for p in sources)
+    bindings = CORE_DIR / "cpp" / "bindings"
+    assert (bindings / "module.cpp").is_file()
     offenders = [f"{p.relative_to(CORE_DIR)}: #include <{header}>"
                  for p in sources for header in include.findall(p.read_text())
                  if forbidden.search(header)
-                 and not (p.name == "bindings.cpp" and (header.startswith("pybind11/") or header == "Python.h"))]
+                 and not (p.parent == bindings and (header.startswith("pybind11/") or header == "Python.h"))]
+    assert offenders == []
+
+
+# The engine's folders in the order of docs/DESIGN.md §1: a file includes only its own folder and those before it.
+ENGINE_LAYERS = ["common", "solvers", "scan", "features", "registration", "validation", "odometry", "bindings"]
+
+
+def test_engine_folders_include_only_lower_layers():
+    include = re.compile(r'^\s*#\s*include\s*"([^"]+)"', re.MULTILINE)
+    sources = sorted(p for p in (CORE_DIR / "cpp").rglob("*") if p.suffix in {".cpp", ".hpp"})
+    assert sorted({p.relative_to(CORE_DIR / "cpp").parts[0] for p in sources}) == sorted(ENGINE_LAYERS)
+    offenders = []
+    for p in sources:
+        layer = ENGINE_LAYERS.index(p.relative_to(CORE_DIR / "cpp").parts[0])
+        for header in include.findall(p.read_text()):
+            folder = header.split("/")[0]
+            if folder not in ENGINE_LAYERS or ENGINE_LAYERS.index(folder) > layer:
+                offenders.append(f"{p.relative_to(CORE_DIR)}: #include \"{header}\"")
     assert offenders == []

@@ -4,7 +4,7 @@
 
 #include <array>
 
-#include "types.hpp"
+#include "common/types.hpp"
 
 namespace line_odom {
 

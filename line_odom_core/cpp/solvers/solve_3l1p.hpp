@@ -5,7 +5,7 @@
 
 #include <array>
 
-#include "types.hpp"
+#include "common/types.hpp"
 
 namespace line_odom {
 

@@ -13,6 +13,7 @@
 #include <limits>
 #include <utility>
 
+#include "common/simd.hpp"
 #include "solvers/solver_input.hpp"
 
 namespace line_odom {
@@ -26,15 +27,6 @@ constexpr double kMinLineSine = 1e-6;         // |d_a x d_b'| floor of the signe
 constexpr double kMinSingularRatio = 1e-7;    // sigma_min / sigma_max of the Jacobian: below it, degenerate
 constexpr double kMaxDamping = 1e10;
 constexpr double kMinRelativeDecrease = 1e-8;  // an accepted step gaining less than this: converged
-
-// The Gauss-Newton loop as AVX2 and baseline clones (no FMA: both give the same bits), its helpers inlined into it.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define S7_CLONES __attribute__((target_clones("avx2", "default")))
-#define S7_INLINE inline __attribute__((always_inline))
-#else
-#define S7_CLONES
-#define S7_INLINE inline
-#endif
 
 struct LinePairs {
   std::array<PluckerLine, 7> a, b;
@@ -64,7 +56,7 @@ inline void cross(const double* a, const double* b, double* c) {
 inline double dot(const double* a, const double* b) { return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]; }
 
 // Signed distances r_i between line a_i and T b_i (and the terms the Jacobian needs).
-S7_INLINE void residuals(const LinePairs& lines, const RigidTransform& T, Vec7* r, MovedPairs* P) {
+LINE_ODOM_CLONE_INLINE void residuals(const LinePairs& lines, const RigidTransform& T, Vec7* r, MovedPairs* P) {
   const double t[3] = {T.t(0), T.t(1), T.t(2)};
   for (int i = 0; i < 7; ++i) {
     const double* da = lines.a[i].d.data();
@@ -84,7 +76,7 @@ S7_INLINE void residuals(const LinePairs& lines, const RigidTransform& T, Vec7* 
 
 // Jacobian of the r_i for T <- exp(xi) T, xi = (omega, v):
 // de = omega·(m' x d_a + d' x m_a) + v·(d' x d_a);  dn = (d_a·d') c·omega / n
-S7_INLINE void jacobian(const LinePairs& lines, const MovedPairs& P, Mat76* J) {
+LINE_ODOM_CLONE_INLINE void jacobian(const LinePairs& lines, const MovedPairs& P, Mat76* J) {
   for (int i = 0; i < 7; ++i) {
     const double* da = lines.a[i].d.data();
     const double* ma = lines.a[i].m.data();
@@ -123,7 +115,7 @@ inline double sum_packets(const double* x, int n) {  // Eigen's unrolled SSE2 re
 // x = A.ldlt().solve(b) for symmetric A (lower part read): Eigen's LDLT with diagonal pivoting, its cutoffs and its
 // operation order (sequential sums in the factorization, the unrolled sums above in the two triangular solves), as
 // plain scalar code on a local array (Eigen's version goes through dynamic-size blocks and GEMV kernels).
-S7_INLINE void ldlt_solve(const Mat6& A_in, const Vec6& b, Vec6* x_out) {
+LINE_ODOM_CLONE_INLINE void ldlt_solve(const Mat6& A_in, const Vec6& b, Vec6* x_out) {
   double a[6][6];  // a[row][col], lower part used
   for (int i = 0; i < 6; ++i)
     for (int j = 0; j < 6; ++j) a[i][j] = A_in(i, j);
@@ -202,8 +194,9 @@ RigidTransform exp_left(const Vec6& xi, const RigidTransform& T) {
 }
 
 // Leaves r and J at the returned pose in *r_out and *J_out (the final acceptance test reuses them).
-S7_CLONES bool gauss_newton(const LinePairs& lines, const RigidTransform& init, const Solve7LOptions& options,
-                  RigidTransform* T_out, int* iterations, Vec7* r_out, Mat76* J_out) {
+LINE_ODOM_VECTOR_CLONES bool gauss_newton(const LinePairs& lines, const RigidTransform& init,
+                                          const Solve7LOptions& options, RigidTransform* T_out, int* iterations,
+                                          Vec7* r_out, Mat76* J_out) {
   RigidTransform T = init;
   Vec7& r = *r_out;
   Mat76& J = *J_out;

@@ -6,7 +6,7 @@
 #include <array>
 #include <limits>
 
-#include "types.hpp"
+#include "common/types.hpp"
 
 namespace line_odom {
 

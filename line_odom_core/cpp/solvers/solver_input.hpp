@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "types.hpp"
+#include "common/types.hpp"
 
 namespace line_odom {
 namespace solver_input {

@@ -6,8 +6,8 @@
 #include <deque>
 #include <vector>
 
-#include "surface_map.hpp"
-#include "types.hpp"
+#include "common/types.hpp"
+#include "registration/surface_map.hpp"
 
 namespace line_odom {
 

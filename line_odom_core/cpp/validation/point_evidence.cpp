@@ -4,7 +4,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "refine.hpp"
+#include "registration/refine.hpp"
 
 namespace line_odom {
 

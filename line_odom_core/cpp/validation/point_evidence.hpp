@@ -7,8 +7,8 @@
 #include <cstdint>
 #include <vector>
 
-#include "surface_map.hpp"
-#include "types.hpp"
+#include "common/types.hpp"
+#include "registration/surface_map.hpp"
 
 namespace line_odom {
 
