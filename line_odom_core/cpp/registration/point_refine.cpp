@@ -23,17 +23,13 @@ PointRefineResult refine_with_points(const SurfaceMap& scan, SurfaceMap& previou
     int matched = 0;
     for (std::size_t i = 0; i < scan.size(); ++i) {
       if (scan.count(static_cast<int>(i)) < options.min_points) continue;  // a mean of a few points is noise
-      const Vec3 q = current.apply(scan.mean(static_cast<int>(i)));
-      const int partner = previous.voxel_of(q);
-      if (partner < 0) continue;
-      const VoxelPlane& plane = previous.plane(partner, options.min_points, options.min_planarity);
-      if (!plane.planar) continue;
-      const double r = plane.normal.dot(q - previous.mean(partner));
-      Vec6 J;
-      J << plane.normal, q.cross(plane.normal);
-      const double w = huber_weight(std::abs(r), options.huber);
-      H.noalias() += w * J * J.transpose();
-      g.noalias() += (w * r) * J;
+      PlaneResidual res;
+      if (!previous.residual(current.apply(scan.mean(static_cast<int>(i))), options.min_points, options.min_planarity,
+                             &res))
+        continue;
+      const double w = huber_weight(std::abs(res.r), options.huber);
+      H.noalias() += w * res.J * res.J.transpose();
+      g.noalias() += (w * res.r) * res.J;
       ++matched;
     }
     out.matched = matched;

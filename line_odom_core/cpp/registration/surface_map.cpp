@@ -137,4 +137,16 @@ const VoxelPlane& SurfaceMap::plane(int index, int min_points, double min_planar
   return out;
 }
 
+bool SurfaceMap::residual(const Vec3& q, int min_points, double min_planarity, PlaneResidual* out) {
+  const int voxel = voxel_of(q);
+  if (voxel < 0) return false;
+  const VoxelPlane& p = plane(voxel, min_points, min_planarity);
+  if (!p.planar) return false;
+  out->voxel = voxel;
+  out->normal = p.normal;
+  out->r = p.normal.dot(q - means_[voxel]);
+  out->J << p.normal, q.cross(p.normal);
+  return true;
+}
+
 }  // namespace line_odom

@@ -33,6 +33,15 @@ struct VoxelPlane {
   bool planar = false;  // enough points, and flat: (l1 - l0) / l2 >= min_planarity of their scatter's eigenvalues
 };
 
+// A point's residual against the plane of the voxel it falls in: r = n . (q - mean), and J, the row of r under a left
+// perturbation (x y z rx ry rz) of the motion that put the point at q.
+struct PlaneResidual {
+  double r = 0.0;
+  Vec3 normal = Vec3::Zero();
+  Vec6 J = Vec6::Zero();
+  int voxel = -1;
+};
+
 class SurfaceMap {
  public:
   // Every `stride`-th row and column of the image's valid points, binned in cubes of `voxel` metres.
@@ -46,6 +55,8 @@ class SurfaceMap {
   int count(int index) const { return counts_[index]; }
   // The plane of the voxel's points (at least min_points of them), computed once.
   const VoxelPlane& plane(int index, int min_points, double min_planarity);
+  // The residual of q against its voxel's plane; false when q's voxel is empty or not planar.
+  bool residual(const Vec3& q, int min_points, double min_planarity, PlaneResidual* out);
 
  private:
   std::uint64_t key_of(const Vec3& p) const;

@@ -16,21 +16,15 @@ PointSupport point_support(SurfaceMap& map, const std::vector<Vec3>& points, con
   out.normal.assign(points.size(), Vec3::Zero());
   double squares = 0.0;
   for (std::size_t i = 0; i < points.size(); ++i) {
-    const Vec3 q = T.apply(points[i]);
-    const int voxel = map.voxel_of(q);
-    if (voxel < 0) continue;
-    const VoxelPlane& plane = map.plane(voxel, options.min_points, options.min_planarity);
-    if (!plane.planar) continue;
+    PlaneResidual res;
+    if (!map.residual(T.apply(points[i]), options.min_points, options.min_planarity, &res)) continue;
     ++out.matched;
-    out.normal[i] = plane.normal;
-    const double r = plane.normal.dot(q - map.mean(voxel));
-    if (std::abs(r) > options.inlier_distance) continue;
+    out.normal[i] = res.normal;
+    if (std::abs(res.r) > options.inlier_distance) continue;
     ++out.inliers;
     out.inlier[i] = 1;
-    squares += r * r;
-    Vec6 J;
-    J << plane.normal, q.cross(plane.normal);
-    out.information.noalias() += J * J.transpose();
+    squares += res.r * res.r;
+    out.information.noalias() += res.J * res.J.transpose();
   }
   out.rms = out.inliers > 0 ? std::sqrt(squares / out.inliers) : 0.0;
   return out;
@@ -43,17 +37,11 @@ PointSupport fit_points(SurfaceMap& map, const std::vector<Vec3>& points, const 
     Mat6 H = Mat6::Zero();
     Vec6 g = Vec6::Zero();
     for (const Vec3& p : points) {
-      const Vec3 q = T.apply(p);
-      const int voxel = map.voxel_of(q);
-      if (voxel < 0) continue;
-      const VoxelPlane& plane = map.plane(voxel, options.min_points, options.min_planarity);
-      if (!plane.planar) continue;
-      const double r = plane.normal.dot(q - map.mean(voxel));
-      Vec6 J;
-      J << plane.normal, q.cross(plane.normal);
-      const double w = huber_weight(std::abs(r), options.inlier_distance);
-      H.noalias() += w * J * J.transpose();
-      g.noalias() += (w * r) * J;
+      PlaneResidual res;
+      if (!map.residual(T.apply(p), options.min_points, options.min_planarity, &res)) continue;
+      const double w = huber_weight(std::abs(res.r), options.inlier_distance);
+      H.noalias() += w * res.J * res.J.transpose();
+      g.noalias() += (w * res.r) * res.J;
     }
     // Levenberg damping relative to the strongest direction: one the planes leave open does not move.
     const double damping = 1e-6 * H.diagonal().maxCoeff() + 1e-9;
