@@ -25,6 +25,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
+from visualization_msgs.msg import MarkerArray
 from std_srvs.srv import Trigger
 
 from line_odom.node_startup import EXIT_BAD_PARAMETER, NODE_NAME, run  # noqa: F401
@@ -115,8 +116,9 @@ class OdometryNodeBase(ParameterMixin):
             self.pub_tf = create_pub(TFMessage, "/tf", 100)
         self.pub_diag = create_pub(DiagnosticArray, "/diagnostics", 10)
         self.pub_scan = create_pub(PointCloud2, "~/scan", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
-        self._publishers_made = [p for p in (self.pub_odom, self.pub_path, self.pub_tf, self.pub_diag, self.pub_scan)
-                                 if p]
+        self.pub_lines = create_pub(MarkerArray, "~/lines", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+        self._publishers_made = [p for p in (self.pub_odom, self.pub_path, self.pub_tf, self.pub_diag, self.pub_scan,
+                                             self.pub_lines) if p]
 
         self._slot = LatestSlot()
         self._camera_info_event = threading.Event()
@@ -236,6 +238,7 @@ class OdometryNodeBase(ParameterMixin):
             msg, received = item
             try:
                 processor.scan_wanted = self.pub_scan.get_subscription_count() > 0
+                processor.lines_wanted = self.pub_lines.get_subscription_count() > 0
                 if depth:
                     if not processor.has_camera_info:
                         # hold a valid image until its CameraInfo arrives (unless a newer image replaces it)
@@ -260,6 +263,8 @@ class OdometryNodeBase(ParameterMixin):
                     self.pub_path.publish(out.path)  # a long path costs milliseconds: only when wanted
                 if out.scan is not None:
                     self.pub_scan.publish(out.scan)
+                if out.lines is not None:
+                    self.pub_lines.publish(out.lines)
             except Exception as err:  # a bug: never let one frame kill the node, and show where it is
                 if slot.closed:
                     break

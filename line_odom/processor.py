@@ -17,7 +17,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from line_odom import convert, frames, messages, scan_view, sensor_check
+from line_odom import convert, frames, lines_view, messages, scan_view, sensor_check
 from line_odom.diagnostics import RateLimitedLog, diagnostic_array, frame_values
 from line_odom.fusion import Fusion
 from line_odom.node_parameters import (INPUTS, NODE_PARAMETER_NAMES, NODE_PARAMETERS, NodeSettings,  # noqa: F401
@@ -44,6 +44,7 @@ class FrameOutput:
     tf: Any | None
     reset_reason: str | None = None
     scan: Any | None = None  # the registered scan as PointCloud2, only when scan_wanted
+    lines: Any | None = None  # the registered lines as MarkerArray, only when lines_wanted
 
 
 def _logger_call(logger, level: str) -> Callable[[str], None]:
@@ -103,6 +104,7 @@ class OdometryProcessor:
         self._path_poses: collections.deque = collections.deque(maxlen=self.settings.path_max_poses)
         # set while something subscribes to the node's ~/scan: building it costs a second pass over the points
         self.scan_wanted = False
+        self.lines_wanted = False
 
     @classmethod
     def from_parameters(cls, preset_or_path: str = "kitti_hdl64", overrides: Mapping[str, Any] | None = None,
@@ -418,6 +420,8 @@ class OdometryProcessor:
             points = frame.kept_points(self.engine, self.config)
             if points is not None:
                 out.scan = scan_view.scan_message(points, frame_id, stamp_ns)
+        if self.lines_wanted and hasattr(self.engine, "last_lines"):
+            out.lines = lines_view.lines_message(*self.engine.last_lines(), frame_id, stamp_ns)
         with self._count_lock:
             self.counters["frames_processed"] += 1
             self._latencies.append(out.latency_ms)

@@ -250,6 +250,12 @@ class Odometry:
     def pose(self) -> np.ndarray:
         return self._engine.pose()
 
+    def last_lines(self) -> tuple[np.ndarray, np.ndarray]:
+        """The H-lines and V-lines the last scan was registered with: segments (n, 2, 3), their two ends in that
+        scan's sensor frame (deskewed, as registered)."""
+        h, v = self._engine.last_lines()
+        return np.asarray(h), np.asarray(v)
+
     @property
     def frames(self) -> int:
         return self._engine.frames()

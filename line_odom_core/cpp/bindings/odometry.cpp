@@ -284,6 +284,15 @@ py::dict sensor_fit(const line_odom::Odometry& o, const py::array& xyz,
   return d;
 }
 
+// The segments (n, 2, 3) of a scan's lines: their two ends, in the scan's sensor frame.
+py::array_t<double> segments_array(const std::vector<line_odom::LineFeature>& lines) {
+  py::array_t<double> out({static_cast<py::ssize_t>(lines.size()), py::ssize_t(2), py::ssize_t(3)});
+  auto S = out.mutable_unchecked<3>();
+  for (py::ssize_t i = 0; i < S.shape(0); ++i)
+    for (int k = 0; k < 3; ++k) S(i, 0, k) = lines[i].segment.a(k), S(i, 1, k) = lines[i].segment.b(k);
+  return out;
+}
+
 }  // namespace odometry_bindings
 
 void line_odom_bindings::register_odometry(py::module_& m) {
@@ -313,6 +322,14 @@ void line_odom_bindings::register_odometry(py::module_& m) {
            py::arg("pose"))
       .def("pose", [](const Odometry& o) -> line_odom::Mat4 { return o.pose().matrix(); })
       .def("frames", &Odometry::frames)
+      .def(
+          "last_lines",
+          [](const Odometry& o) {
+            return py::make_tuple(ob::segments_array(o.last_features().h_lines),
+                                  ob::segments_array(o.last_features().v_lines));
+          },
+          "The H-lines and V-lines the last scan was registered with, as segments (n, 2, 3) in its sensor frame "
+          "(deskewed, as registered).")
       .def("settings", [](const Odometry& o) { return ob::settings_dict(o.config()); });
   m.def("reads_in_place", [](const py::array& xyz) { return ob::in_place_stride(xyz) > 0; }, py::arg("xyz"),
         "Whether register_points / register_organized read these points without a copy.");
