@@ -48,7 +48,11 @@ def test_rviz_config_shows_odometry_path_tf_in_odom_frame():
     assert displays["rviz_default_plugins/Odometry"]["Topic"]["Value"] == "/odom"
     assert displays["rviz_default_plugins/Path"]["Topic"]["Value"] == "/path"
     assert "rviz_default_plugins/TF" in displays
-    assert displays["rviz_default_plugins/PointCloud2"]["Topic"]["Reliability Policy"] == "Best Effort"
+    clouds = {d["Name"]: d["Topic"] for d in manager["Displays"] if d["Class"] == "rviz_default_plugins/PointCloud2"}
+    # sensor drivers publish best effort; the node's own ~/scan is reliable
+    assert clouds["Input cloud"]["Reliability Policy"] == "Best Effort"
+    assert clouds["Registered scan"]["Value"] == "/line_odom/scan"
+    assert clouds["Registered scan"]["Reliability Policy"] == "Reliable"
 
 
 def test_setup_installs_launch_rviz_and_dds_profile():
