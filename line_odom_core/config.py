@@ -226,29 +226,27 @@ _ENTRIES: list[ConfigEntry] = [
     ConfigEntry("points.max_translation", float, 0.1, "a refinement moving the lines' estimate further than this (m) "
                 "is not taken", 0.0, 10.0),
     ConfigEntry("points.max_rotation_deg", float, 0.5, "... or turning it more than this (deg)", 0.0, 180.0),
-    # --- the points' check of each motion (beyond the paper; docs/NODE.md, "Checked by the points") ---
-    ConfigEntry("evidence.enabled", bool, False, "check each frame's motion against this scan's points on the planes "
-                "of a local map of the last registered scans; a motion they significantly contradict is flagged "
-                "(degenerate, the fallback covariance)", None, None),
-    ConfigEntry("evidence.voxel", float, 1.0, "the local map's cubes (m): each holds the plane of its points", 0.01,
-                10.0),
-    ConfigEntry("evidence.map_scans", int, 10, "registered scans kept in the local map", 1, 100),
-    ConfigEntry("evidence.map_points", int, 40000, "points the local map keeps, spread evenly over its scans", 100,
-                10000000),
-    ConfigEntry("evidence.max_points", int, 4000, "of this scan's points checked, spread evenly over the scan", 100,
-                10000000),
-    ConfigEntry("evidence.min_points", int, 5, "points a map voxel needs for its plane", 3, 1000000),
-    ConfigEntry("evidence.min_planarity", float, 0.1, "a map voxel is flat enough when (l1 - l0) / l2 of its points' "
-                "scatter's eigenvalues reaches this", 0.0, 1.0),
-    ConfigEntry("evidence.inlier_distance", float, 0.1, "a point this close (m) to its map voxel's plane supports the "
-                "motion; motions closer than this are not told apart", 1e-4, 10.0),
-    ConfigEntry("evidence.iterations", int, 10, "Gauss-Newton steps of each point fit", 1, 100),
-    ConfigEntry("evidence.significance", float, 3.0, "McNemar's z over the points only one of two motions supports "
-                "above which the points prefer the other motion", 1e-3, 100.0),
-    ConfigEntry("evidence.min_matches", int, 200, "checked points on the map's planes below which the points tell "
-                "nothing", 1, 10000000),
-    ConfigEntry("evidence.search_range", float, 3.0, "metres searched either way along the translations the lines "
-                "leave unobserved", 0.0, 100.0),
+    # --- the point map where the lines leave a direction open, and the lines' observability (beyond the paper;
+    # docs/NODE.md, "Validation") ---
+    ConfigEntry("point_map.enabled", bool, True, "keep a local map of the last scans' points and align a scan to it "
+                "where the lines do not pin its motion down (a first motion, a street along which every pair meets)",
+                None, None),
+    ConfigEntry("point_map.voxel", float, 0.0, "the map's cubes (m); 0: sensor.max_range / 100", 0.0, 100.0),
+    ConfigEntry("point_map.max_points_per_voxel", int, 20, "points each cube keeps", 1, 1000),
+    ConfigEntry("point_map.max_iterations", int, 50, "Gauss-Newton iterations of an alignment", 1, 1000),
+    ConfigEntry("point_map.initial_threshold", float, 2.0, "the motion model's error assumed before one was measured "
+                "(m): the alignment's first reach", 1e-3, 100.0),
+    ConfigEntry("point_map.min_motion", float, 0.1, "frames moving less than this (m) do not measure the motion "
+                "model's error", 0.0, 100.0),
+    ConfigEntry("validation.enabled", bool, True, "test that the lines pin each motion down in every direction "
+                "(McNemar's test of the pairs meeting under the motion against the motion pushed either way)",
+                None, None),
+    ConfigEntry("validation.tolerance", float, 0.3, "the push (m; rotations: as far at the lines' range): a motion "
+                "is claimed right to this", 1e-3, 100.0),
+    ConfigEntry("validation.motion_share", float, 0.3, "... or to this share of its translation, when larger", 0.0,
+                1.0),
+    ConfigEntry("validation.significance", float, 3.0, "z below which a push is not rejected: the direction is not "
+                "pinned down (held at the point map's alignment, flagged)", 1e-3, 100.0),
 ]
 
 CHOICES: dict[str, tuple[str, ...]] = {"ransac.solver": ("auto", "7L", "3L1P", "1L2P"),

@@ -49,10 +49,10 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   ms["candidates"] = s.ms.candidates;
   ms["ransac"] = s.ms.ransac;
   ms["points"] = s.ms.points;
-  ms["evidence"] = s.ms.evidence;
+  ms["validation"] = s.ms.validation;
   ms["total"] = s.ms.total;
   py::dict d;
-  d["solver"] = s.solver;
+  d["solver"] = line_odom::solver_name(s.solver);
   d["points"] = s.points;
   d["h_lines"] = s.h_lines;
   d["v_lines"] = s.v_lines;
@@ -85,10 +85,11 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["deskewed_again"] = s.deskewed_again;
   d["points_refined"] = s.points_refined;
   d["point_matches"] = s.point_matches;
-  d["evidence"] = s.evidence;
-  d["evidence_matches"] = s.evidence_matches;
-  d["evidence_inliers"] = s.evidence_inliers;
-  d["evidence_z"] = s.evidence_z;
+  d["observability"] = py::make_tuple(s.observability(0), s.observability(1), s.observability(2), s.observability(3),
+                                      s.observability(4), s.observability(5));
+  d["unobserved"] = s.unobserved;
+  d["points_aligned"] = s.points_aligned;
+  d["point_map_matches"] = s.point_map_matches;
   d["ms"] = ms;
   return d;
 }

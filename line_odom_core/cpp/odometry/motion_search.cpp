@@ -1,8 +1,8 @@
 // The motion searched beyond the candidates' reach from the prediction (paper §6.3 needs a guess within the
 // candidate distance): the first motion with no velocity yet, a velocity no scan has measured, a turn the prediction
 // missed. Each scores shifted or turned motions by the candidate pairs they support (support_peak) and registers
-// from the peak. Members of Odometry (odometry.hpp).
-#include "odometry/odometry.hpp"
+// from the peak.
+#include "odometry/motion_search.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "common/stopwatch.hpp"
+#include "odometry/motion_prediction.hpp"
 #include "registration/line_pair_table.hpp"
 
 namespace line_odom {
@@ -144,18 +145,18 @@ RigidTransform turn_motion(const RigidTransform& T, const Vec3& axis, double amo
 // the passes also run from the first pass's loser and from the best-supported shift (weak_translation_peak), also
 // when the first pass failed (a street at 3 m a scan: ill-conditioned from standing still), and the result kept is
 // the one the candidates picked near each motion support most.
-PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures& cur,
-                                   const RigidTransform& prediction, const RigidTransform* coarse_motion,
-                                   FrameStats* st) const {
+PassOutcome MotionSearch::first_motion(const ScanFeatures& prev, const ScanFeatures& cur,
+                                       const RigidTransform& prediction, const RigidTransform* coarse_motion,
+                                       const RegistrationFrame& frame, FrameStats* st) const {
   const bool guessed = coarse_motion != nullptr;
   const RigidTransform& first_start = guessed ? *coarse_motion : prediction;
-  PassOutcome outcome = register_features(prev, cur, prediction, first_start, guessed, st);
+  PassOutcome outcome = lines_.register_features(prev, cur, prediction, first_start, guessed, frame, st);
   const bool found = outcome.have && !outcome.stats.degenerate && outcome.stats.covariance.allFinite();
   Stopwatch scan;
   CandidateIndex index(prev);
   // Failed there, the first pass's start stands (the caller falls back to the coarse motion) unless out-supported.
   const RigidTransform& reference = found ? outcome.best : first_start;
-  double best_support = found || guessed ? support(index, cur, reference) : -1.0;
+  double best_support = found || guessed ? lines_.support(index, cur, reference) : -1.0;
   std::vector<RigidTransform> starts;
   if (found && outcome.have_rival) starts.push_back(outcome.rival);
   RigidTransform peak;
@@ -164,13 +165,13 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
   st->ms.candidates += scan.ms();
   for (const RigidTransform& start : starts) {
     FrameStats other_stats;
-    PassOutcome other = register_features(prev, cur, prediction, start, true, &other_stats);
+    PassOutcome other = lines_.register_features(prev, cur, prediction, start, true, frame, &other_stats);
     st->ms.candidates += other_stats.ms.candidates;
     st->ms.ransac += other_stats.ms.ransac;
     st->iterations += other_stats.iterations;
     if (!other.have || other.stats.degenerate) continue;
     scan = Stopwatch();
-    const double other_support = support(index, cur, other.best);
+    const double other_support = lines_.support(index, cur, other.best);
     st->ms.candidates += scan.ms();
     if (other_support <= best_support) continue;
     best_support = other_support;
@@ -190,11 +191,12 @@ PassOutcome Odometry::first_motion(const ScanFeatures& prev, const ScanFeatures&
 // motion's) and registered from the peak; that motion is taken when it observes every direction and the candidates
 // picked near it support it kRecoveryMargin times as much as the estimate. A velocity held correctly is out-supported
 // by no shift, and where the scene does not observe them the scan finds no peak or the registration is degenerate.
-bool Odometry::search_unmeasured(const ScanFeatures& prev, const ScanFeatures& cur, const ScanFeatures& prev_scanned,
-                                 const ScanFeatures& cur_scanned, const RigidTransform& prediction,
-                                 PassOutcome* outcome, FrameStats* st) const {
+bool MotionSearch::search_unmeasured(const ScanFeatures& prev, const ScanFeatures& cur,
+                                     const ScanFeatures& prev_scanned, const ScanFeatures& cur_scanned,
+                                     const RigidTransform& prediction, const Mat6& unmeasured_projector,
+                                     const RegistrationFrame& frame, PassOutcome* outcome, FrameStats* st) const {
   const RigidTransform& estimate = outcome->have ? outcome->best : prediction;
-  const Eigen::SelfAdjointEigenSolver<Mat3> translations(unmeasured_projector_.topLeftCorner<3, 3>());
+  const Eigen::SelfAdjointEigenSolver<Mat3> translations(unmeasured_projector.topLeftCorner<3, 3>());
   std::vector<std::pair<RigidTransform, Vec3>> scans;
   for (int k = 0; k < 3; ++k)
     if (translations.eigenvalues()(k) >= kUnmeasuredTranslation)
@@ -206,8 +208,8 @@ bool Odometry::search_unmeasured(const ScanFeatures& prev, const ScanFeatures& c
   const bool peaked = translation_peak(scanned_index, cur_scanned, estimate, scans, &peak);
   st->ms.candidates += scan.ms();
   // (a shift within the scan's own candidate reach is the registration's: a corridor's flat support peaks anywhere)
-  if (!peaked || (peak.t - estimate.t).norm() < 0.25 * config_.candidates.max_distance) return false;
-  return adopt_if_better(prev, cur, prediction, estimate, peak, outcome, st);
+  if (!peaked || (peak.t - estimate.t).norm() < 0.25 * config().candidates.max_distance) return false;
+  return adopt_if_better(prev, cur, prediction, estimate, peak, frame, outcome, st);
 }
 
 // The turn rate changed since the last frame (a robot reversing its turn, a swung sensor): the prediction's heading
@@ -217,8 +219,9 @@ bool Odometry::search_unmeasured(const ScanFeatures& prev, const ScanFeatures& c
 // moving the lines at the scan's median range as far as a step of the shift scan, and registers from the peak. So does
 // a frame that kept less than kSupportDrop of the last frame's support (a wrong heading where a few coincidental pairs
 // observe every direction). A frame that holds only translations (a highway's forward motion) is not searched.
-bool Odometry::search_turn(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
-                           PassOutcome* outcome, FrameStats* st) const {
+bool MotionSearch::search_turn(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
+                               double last_inlier_weight, const RegistrationFrame& frame, PassOutcome* outcome,
+                               FrameStats* st) const {
   const bool registered = outcome->have && !outcome->stats.degenerate && outcome->stats.covariance.allFinite();
   if (registered) {
     Mat6 rotations = Mat6::Zero();
@@ -226,15 +229,15 @@ bool Odometry::search_turn(const ScanFeatures& prev, const ScanFeatures& cur, co
     const bool holds_rotation = !common_directions(outcome->held_projector, rotations, kHeldRotationCosine).isZero();
     // A registration that kept a small share of the last frame's support (the walls' pairs out of reach, only the
     // ground's meeting) may have settled on a wrong heading, whatever it holds.
-    const bool lost_support = outcome->stats.inlier_weight < kSupportDrop * last_inlier_weight_;
+    const bool lost_support = outcome->stats.inlier_weight < kSupportDrop * last_inlier_weight;
     if (!holds_rotation && !lost_support) return false;
   }
   st->turn_searched = true;
   const RigidTransform& estimate = registered ? outcome->best : prediction;
   Stopwatch scan;
-  const double threshold = config_.ransac.inlier_threshold;
+  const double threshold = config().ransac.inlier_threshold;
   const double lever = median_line_range(cur);
-  const double range = config_.registration.max_rotation_deg * kPi / 180.0;
+  const double range = config().registration.max_rotation_deg * kPi / 180.0;
   const double step = std::max(kWeakShiftStep * threshold / lever, range / kMaxShiftSteps);
   const int steps = static_cast<int>(range / step + 1e-9);
   const double tolerance = 0.5 * step * lever / threshold;
@@ -248,36 +251,39 @@ bool Odometry::search_turn(const ScanFeatures& prev, const ScanFeatures& cur, co
                                                 {{estimate, level ? ground.n : Vec3::UnitZ()}}, turn_motion, step,
                                                 steps, tolerance, &peak);
   st->ms.candidates += scan.ms();
-  return peaked && adopt_if_better(prev, cur, prediction, estimate, peak, outcome, st);
+  return peaked && adopt_if_better(prev, cur, prediction, estimate, peak, frame, outcome, st);
 }
 
 // No velocity yet: a registration on the scans downsampled by registration.coarse_downsample finds the first motion
 // (paper §6.3 needs a guess within the candidate distance), the configured resolution refines it from there (or from
 // standing still) and from other starts (first_motion).
-PassOutcome Odometry::search_first_motion(const ScanFeatures& cur, const ScanFeatures& coarse_cur,
-                                          const RigidTransform& prediction, FrameStats* st) const {
+PassOutcome MotionSearch::search_first_motion(const ScanFeatures& prev, const ScanFeatures& prev_coarse,
+                                              const ScanFeatures& cur, const ScanFeatures& coarse_cur,
+                                              const RigidTransform& prediction, const RegistrationFrame& frame,
+                                              FrameStats* st) const {
   bool coarse_used = false;
   PassOutcome coarse;
-  if (!prev_coarse_features_.h_lines.empty() && !coarse_cur.h_lines.empty()) {
+  if (!prev_coarse.h_lines.empty() && !coarse_cur.h_lines.empty()) {
     FrameStats coarse_stats;
-    coarse = register_features(prev_coarse_features_, coarse_cur, prediction, prediction, false, &coarse_stats);
+    coarse = lines_.register_features(prev_coarse, coarse_cur, prediction, prediction, false, frame, &coarse_stats);
     st->ms.candidates += coarse_stats.ms.candidates;
     st->ms.ransac += coarse_stats.ms.ransac;
     st->iterations += coarse_stats.iterations;
     coarse_used = coarse.have && !coarse.stats.degenerate;
   }
-  PassOutcome outcome = first_motion(prev_features_, cur, prediction, coarse_used ? &coarse.best : nullptr, st);
+  PassOutcome outcome = first_motion(prev, cur, prediction, coarse_used ? &coarse.best : nullptr, frame, st);
   // The first motion seen there stands when the configured resolution cannot confirm it (too few crossings
   // along the motion, e.g. a highway at 1/64 with a first motion found at 1/36).
   if (coarse_used && !(outcome.have && !outcome.stats.degenerate)) outcome = coarse;
   return outcome;
 }
 
-bool Odometry::adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
-                               const RigidTransform& held, const RigidTransform& start, PassOutcome* outcome,
-                               FrameStats* st) const {
+bool MotionSearch::adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur,
+                                   const RigidTransform& prediction, const RigidTransform& held,
+                                   const RigidTransform& start, const RegistrationFrame& frame, PassOutcome* outcome,
+                                   FrameStats* st) const {
   FrameStats other_stats;
-  PassOutcome other = register_features(prev, cur, prediction, start, true, &other_stats);
+  PassOutcome other = lines_.register_features(prev, cur, prediction, start, true, frame, &other_stats);
   st->ms.candidates += other_stats.ms.candidates;
   st->ms.ransac += other_stats.ms.ransac;
   st->iterations += other_stats.iterations;
@@ -285,8 +291,8 @@ bool Odometry::adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur
     return false;
   Stopwatch scan;
   CandidateIndex index(prev);
-  const double held_support = support(index, cur, held);
-  const double found_support = support(index, cur, other.best);
+  const double held_support = lines_.support(index, cur, held);
+  const double found_support = lines_.support(index, cur, other.best);
   st->ms.candidates += scan.ms();
   if (!(found_support > kRecoveryMargin * held_support)) return false;
   *outcome = other;
@@ -300,7 +306,7 @@ bool Odometry::adopt_if_better(const ScanFeatures& prev, const ScanFeatures& cur
 // covariance, when it has one), and of the prediction along each sensor axis and along the lines (vehicles move along
 // a sensor axis or the road; a wrong sample's rotation would hide the right shift, and where two directions are about
 // as weak the eigenvector mixes them).
-bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+bool MotionSearch::weak_translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                                      const Mat6* covariance, const RigidTransform& prediction,
                                      RigidTransform* peak) const {
   std::vector<std::pair<RigidTransform, Vec3>> scans;
@@ -324,10 +330,10 @@ bool Odometry::weak_translation_peak(CandidateIndex& index, const ScanFeatures& 
 // Each origin shifted along its direction every kWeakShiftStep inlier thresholds (at most kMaxShiftSteps per side) out
 // to the largest motion the registration accepts (registration.max_translation, at least the candidate distance),
 // scored with half a step of tolerance (support_peak).
-bool Odometry::translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+bool MotionSearch::translation_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                                 const std::vector<std::pair<RigidTransform, Vec3>>& scans, RigidTransform* peak) const {
-  const double threshold = config_.ransac.inlier_threshold;
-  const double range = std::max(config_.candidates.max_distance, config_.registration.max_translation);
+  const double threshold = config().ransac.inlier_threshold;
+  const double range = std::max(config().candidates.max_distance, config().registration.max_translation);
   const double step = std::max(kWeakShiftStep * threshold, range / kMaxShiftSteps);
   const int steps = static_cast<int>(range / step + 1e-9);
   return support_peak(index, cur, estimate, scans, shift_motion, step, steps, 0.5 * step / threshold, peak);
@@ -336,19 +342,19 @@ bool Odometry::translation_peak(CandidateIndex& index, const ScanFeatures& cur, 
 // Each origin moved along its axis (`move`) every `step` out to `steps` per side, scored on up to kScanLines of the
 // scan's lines and the candidates within a quarter of the candidate distance, with `tolerance` inlier thresholds:
 // true when one out-supports the estimate itself; the peak refined to a quarter step.
-bool Odometry::support_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
+bool MotionSearch::support_peak(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& estimate,
                             const std::vector<std::pair<RigidTransform, Vec3>>& scans, MoveMotion move, double step,
                             int steps, double tolerance, RigidTransform* peak) const {
   const ScanFeatures scored = every_kth_line(cur, kScanLines);
-  const double reach = 0.25 * config_.candidates.max_distance;
-  double best = support(index, scored, estimate, tolerance, reach);
+  const double reach = 0.25 * config().candidates.max_distance;
+  double best = lines_.support(index, scored, estimate, tolerance, reach);
   const double estimate_tolerant = best;
   Vec3 peak_axis = Vec3::Zero();
   for (const auto& [origin, axis] : scans) {
     for (int k = -steps; k <= steps; ++k) {
       if (k == 0) continue;
       const RigidTransform moved = move(origin, axis, k * step);
-      const double s = support(index, scored, moved, tolerance, reach);
+      const double s = lines_.support(index, scored, moved, tolerance, reach);
       if (s > best) {
         best = s;
         *peak = moved;
@@ -363,10 +369,10 @@ bool Odometry::support_peak(CandidateIndex& index, const ScanFeatures& cur, cons
     fine_step *= 0.5;
     fine_tolerance *= 0.5;
     const RigidTransform centre = *peak;
-    double centre_support = support(index, scored, centre, fine_tolerance, reach);
+    double centre_support = lines_.support(index, scored, centre, fine_tolerance, reach);
     for (const double side : {-1.0, 1.0}) {
       const RigidTransform moved = move(centre, peak_axis, side * fine_step);
-      const double s = support(index, scored, moved, fine_tolerance, reach);
+      const double s = lines_.support(index, scored, moved, fine_tolerance, reach);
       if (s > centre_support) {
         centre_support = s;
         *peak = moved;
@@ -376,14 +382,5 @@ bool Odometry::support_peak(CandidateIndex& index, const ScanFeatures& cur, cons
   return true;
 }
 
-double Odometry::support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
-                         double threshold_scale, double max_distance) const {
-  Correspondences corr;
-  CandidateOptions options = config_.candidates;
-  if (max_distance > 0.0) options.max_distance = options.plane_max_distance = max_distance;
-  build_candidates(index, cur, T, options, &corr, nullptr, pool_.get());
-  return score_motion(LinePairTable(corr), T, threshold_scale * config_.ransac.inlier_threshold,
-                      RefineOptions{}.min_line_sine);
-}
 
 }  // namespace line_odom

@@ -81,18 +81,16 @@ void visit_settings(Config& c, Visit&& visit) {
   visit("points.iterations", c.points.iterations);
   visit("points.max_translation", c.points.max_translation);
   visit("points.max_rotation_deg", c.points.max_rotation_deg);
-  visit("evidence.enabled", c.evidence.enabled);
-  visit("evidence.voxel", c.evidence.voxel);
-  visit("evidence.map_scans", c.evidence.map_scans);
-  visit("evidence.map_points", c.evidence.map_points);
-  visit("evidence.max_points", c.evidence.max_points);
-  visit("evidence.min_points", c.evidence.min_points);
-  visit("evidence.min_planarity", c.evidence.min_planarity);
-  visit("evidence.inlier_distance", c.evidence.inlier_distance);
-  visit("evidence.iterations", c.evidence.iterations);
-  visit("evidence.significance", c.evidence.significance);
-  visit("evidence.min_matches", c.evidence.min_matches);
-  visit("evidence.search_range", c.evidence.search_range);
+  visit("point_map.enabled", c.point_map.enabled);
+  visit("point_map.voxel", c.point_map.voxel);
+  visit("point_map.max_points_per_voxel", c.point_map.max_points_per_voxel);
+  visit("point_map.max_iterations", c.point_map.alignment.max_iterations);
+  visit("point_map.initial_threshold", c.point_map.alignment.initial_threshold);
+  visit("point_map.min_motion", c.point_map.alignment.min_motion);
+  visit("validation.enabled", c.validation.enabled);
+  visit("validation.tolerance", c.validation.tolerance);
+  visit("validation.motion_share", c.validation.motion_share);
+  visit("validation.significance", c.validation.significance);
 }
 
 const char* const kSolverNames[] = {"auto", "7L", "3L1P", "1L2P"};

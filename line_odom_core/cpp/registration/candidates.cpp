@@ -755,7 +755,12 @@ void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidT
   out->segments_b.resize(n);
   out->weights.resize(n);
   out->clusters.resize(n);
+  out->lines_b_index.resize(n);
   for (size_t i = 0; i < n; ++i) {
+    const LineFeature* lb = pairs[i].b;
+    const bool vertical = !b.v_lines.empty() && lb >= b.v_lines.data() && lb < b.v_lines.data() + b.v_lines.size();
+    out->lines_b_index[i] = vertical ? static_cast<int>(lb - b.v_lines.data())
+                                     : static_cast<int>(b.v_lines.size() + (lb - b.h_lines.data()));
     out->lines_a[i] = pairs[i].a->line;
     out->lines_b[i] = pairs[i].b->line;
     out->segments_a[i] = pairs[i].a->segment;

@@ -13,6 +13,7 @@ struct Correspondences {
   std::vector<Segment> segments_a, segments_b;  // optional (empty or same size as lines): 7L uses them
   std::vector<double> weights;                  // optional: inlier weight per line pair (default 1)
   std::vector<int> clusters;                    // optional: normal cluster 0..2 of the pair (-1 = none)
+  std::vector<int> lines_b_index;               // optional: which line of b (its V-lines, then its H-lines)
   std::vector<Plane> planes_a, planes_b;        // candidate plane correspondences
 };
 

@@ -1,0 +1,33 @@
+// The frame's motion and covariance from the registration's outcome and the motion model: fused with the
+// constant-velocity prior (registration.motion_prior_*), a partial estimate's held directions taken from the reference
+// they were held at with at least the fallback variance, a failed registration holding the reference in full.
+#pragma once
+
+#include <string>
+
+#include "common/types.hpp"
+#include "odometry/line_registration.hpp"
+#include "odometry/odometry_config.hpp"
+
+namespace line_odom {
+
+struct FusedMotion {
+  RigidTransform delta;                 // T_prev_curr
+  Mat6 covariance = Mat6::Zero();       // of delta (x y z rx ry rz)
+  Mat6 held_projector = Mat6::Zero();   // onto the directions taken from the reference, not the scans
+  bool registered = false;              // an estimate was accepted
+  bool degenerate = false;              // ... but held the reference in some direction, or nothing was accepted
+  int held_directions = 0;              // 6: nothing accepted
+  std::string failure;
+};
+
+// Independent sigmas per axis: translation (m) on x y z, rotation (rad) on rx ry rz.
+Mat6 motion_covariance(double translation_sigma, double rotation_sigma);
+
+// `reference`: what the outcome's held directions were held at, and what a failed registration holds (the prediction,
+// or the points' motion); `prediction`: the constant-velocity prior; `fuse_prior`: a velocity was known before this
+// frame; `unmeasured`: the velocity's directions nobody measured (no prior pulls there).
+FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& prediction, const RigidTransform& reference,
+                        const RegistrationOptions& options, bool fuse_prior, const Mat6& unmeasured);
+
+}  // namespace line_odom

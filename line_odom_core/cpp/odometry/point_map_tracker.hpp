@@ -1,0 +1,39 @@
+// The scan's points against the local map of the last scans' points (voxel_points.hpp, point_alignment.hpp), beyond
+// the paper: asked where the line intersections leave a direction of the motion open. Its own state: the map (in the
+// odometry frame) and how far the motion model has recently been off.
+#pragma once
+
+#include <vector>
+
+#include "common/types.hpp"
+#include "odometry/odometry_config.hpp"
+#include "registration/point_alignment.hpp"
+#include "registration/voxel_points.hpp"
+
+namespace line_odom {
+
+class PointMapTracker {
+ public:
+  PointMapTracker(const PointMapOptions& options, double max_range);
+
+  bool enabled() const { return options_.enabled; }
+  bool ready() const { return options_.enabled && !map_.empty(); }
+  // The motion T_prev_curr that aligns `points` (this scan, sensor frame) to the map, from `prediction` after the
+  // previous scan at `previous_pose`; false when too few points found a map point.
+  bool align(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& prediction,
+             RigidTransform* motion, int* matched) const;
+  // A frame done: its points at `pose`; `predicted` against `registered` tells the motion model's error (not on a first
+  // motion, which had no model).
+  void add(const std::vector<Vec3>& points, const RigidTransform& pose, const RigidTransform& predicted,
+           const RigidTransform& registered, bool had_model);
+  void reset();
+
+ private:
+  PointMapOptions options_;
+  double max_range_;
+  double voxel_;
+  VoxelPointMap map_;
+  MotionModelError model_error_;
+};
+
+}  // namespace line_odom

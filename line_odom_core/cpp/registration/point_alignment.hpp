@@ -1,0 +1,52 @@
+// A scan's points aligned to the local map of the last scans' points (voxel_points.hpp), beyond the paper: the
+// point-to-point registration of KISS-ICP (Vizzo et al., RA-L 2023) with its robust kernel and its threshold adapted to
+// how far the motion model has recently been off. The odometry asks it where the line intersections leave a direction
+// of the motion open (a first motion from standing still, a street along which every pair meets): there the points of
+// poles, trees and cars still place the scan.
+#pragma once
+
+#include <vector>
+
+#include "common/types.hpp"
+#include "registration/voxel_points.hpp"
+
+namespace line_odom {
+
+struct PointAlignmentOptions {
+  int max_iterations = 30;
+  double convergence = 1e-3;        // |step| (m, rad) under which the alignment has converged
+  double initial_threshold = 2.0;   // m: the motion model's error assumed before any was measured
+  double min_motion = 0.1;          // m: a frame moving less than this says nothing about the model's error
+};
+
+struct PointAlignment {
+  RigidTransform pose;               // T_world_sensor of the scan
+  Mat6 information = Mat6::Zero();   // J^T W J at the result (x y z rx ry rz, left perturbation in the world frame)
+  int matched = 0;                   // points with a map point within the threshold at the last iteration
+  int iterations = 0;
+  bool converged = false;
+};
+
+// Gauss-Newton from `initial_pose` on the Geman-McClure-weighted distances of `points` (sensor frame) to their nearest
+// map points within 3 sigma (kernel scale sigma / 3).
+PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& points,
+                            const RigidTransform& initial_pose, double sigma, const PointAlignmentOptions& options);
+
+// How far off the motion model has been (KISS-ICP's adaptive threshold): the rms over the frames that moved of the
+// distance a point at `range` metres moves between the predicted and the registered motion.
+class MotionModelError {
+ public:
+  MotionModelError() = default;
+  MotionModelError(double initial_sigma, double min_motion, double range)
+      : initial_(initial_sigma), min_motion_(min_motion), range_(range) {}
+  void add(const RigidTransform& predicted, const RigidTransform& registered);
+  double sigma() const;
+  void clear() { sum_ = 0.0, count_ = 0; }
+
+ private:
+  double initial_ = 2.0, min_motion_ = 0.1, range_ = 100.0;
+  double sum_ = 0.0;
+  int count_ = 0;
+};
+
+}  // namespace line_odom

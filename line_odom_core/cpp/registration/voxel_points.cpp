@@ -1,0 +1,123 @@
+#include "registration/voxel_points.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace line_odom {
+
+namespace {
+
+constexpr std::int64_t kBias = 1 << 20;  // 21 bits per axis, as SurfaceMap's keys
+
+std::int64_t cell_of(double v, double voxel) {
+  constexpr double kFarthest = 1e15;  // a cast beyond int64 would be undefined
+  return static_cast<std::int64_t>(std::clamp(std::floor(v / voxel), -kFarthest, kFarthest));
+}
+
+std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+  const auto field = [](std::int64_t c) { return static_cast<std::uint64_t>((c + kBias) & ((std::int64_t{1} << 21) - 1)); };
+  return field(x) << 42 | field(y) << 21 | field(z);
+}
+
+}  // namespace
+
+std::uint64_t VoxelPointMap::key(std::int64_t x, std::int64_t y, std::int64_t z) const { return pack(x, y, z); }
+
+void VoxelPointMap::clear() {
+  table_ = VoxelTable{};
+  voxels_.clear();
+  points_.clear();
+}
+
+void VoxelPointMap::rebuild_table() {
+  table_.reset(voxels_.size());
+  for (std::size_t i = 0; i < voxels_.size(); ++i) {
+    bool inserted = false;
+    table_.insert(key(voxels_[i].x, voxels_[i].y, voxels_[i].z), &inserted);
+  }
+}
+
+void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& pose, double max_distance) {
+  if (voxels_.empty()) table_.reset(points.size());
+  for (const Vec3& p : points) {
+    const Vec3 q = pose.apply(p);
+    if (!q.allFinite()) continue;
+    const std::int64_t x = cell_of(q.x(), voxel_), y = cell_of(q.y(), voxel_), z = cell_of(q.z(), voxel_);
+    bool inserted = false;
+    const std::int32_t slot = table_.insert(key(x, y, z), &inserted);
+    if (inserted) {
+      voxels_.push_back({x, y, z, static_cast<int>(points_.size()), 0});
+      points_.resize(points_.size() + per_voxel_);
+    }
+    Voxel& v = voxels_[slot];
+    if (v.count < per_voxel_) points_[v.first + v.count++] = q;
+  }
+  // Drop the voxels out of the sensor's reach once they are a quarter of the map (they are never near a scan's points;
+  // dropping compacts the points and builds the table again).
+  const double reach2 = max_distance * max_distance;
+  std::size_t far = 0;
+  for (const Voxel& v : voxels_) far += (points_[v.first] - pose.t).squaredNorm() > reach2;
+  if (4 * far < voxels_.size()) return;
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < voxels_.size(); ++i) {
+    const Voxel& v = voxels_[i];
+    if ((points_[v.first] - pose.t).squaredNorm() > reach2) continue;
+    if (kept != i) {
+      Voxel moved = v;
+      moved.first = static_cast<int>(kept) * per_voxel_;
+      std::copy(points_.begin() + v.first, points_.begin() + v.first + v.count, points_.begin() + moved.first);
+      voxels_[kept] = moved;
+    }
+    ++kept;
+  }
+  voxels_.resize(kept);
+  points_.resize(kept * per_voxel_);
+  rebuild_table();
+}
+
+bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_point) const {
+  if (voxels_.empty()) return false;
+  // Within half a voxel of q every point lies in the 2 x 2 x 2 voxels around the corner nearest q; farther, the
+  // 3 x 3 x 3 around q's voxel hold what is within one voxel.
+  const bool near = max_distance <= 0.5 * voxel_;
+  const Vec3 cell = q / voxel_;
+  std::int64_t lo[3];
+  for (int k = 0; k < 3; ++k)
+    lo[k] = cell_of(q[k], voxel_) - (near ? (cell[k] - std::floor(cell[k]) < 0.5 ? 1 : 0) : 1);
+  const std::int64_t span = near ? 1 : 2;
+  double best = max_distance * max_distance;
+  bool found = false;
+  for (std::int64_t dx = 0; dx <= span; ++dx)
+    for (std::int64_t dy = 0; dy <= span; ++dy)
+      for (std::int64_t dz = 0; dz <= span; ++dz) {
+        const std::int32_t slot = table_.find(key(lo[0] + dx, lo[1] + dy, lo[2] + dz));
+        if (slot < 0) continue;
+        const Voxel& v = voxels_[slot];
+        for (int k = 0; k < v.count; ++k) {
+          const double d2 = (points_[v.first + k] - q).squaredNorm();
+          if (d2 < best) {
+            best = d2;
+            *nearest_point = points_[v.first + k];
+            found = true;
+          }
+        }
+      }
+  return found;
+}
+
+std::vector<Vec3> voxel_downsample(const std::vector<Vec3>& points, double voxel) {
+  VoxelTable table;
+  table.reset(points.size());
+  std::vector<Vec3> out;
+  out.reserve(points.size());
+  for (const Vec3& p : points) {
+    if (!p.allFinite()) continue;
+    bool inserted = false;
+    table.insert(pack(cell_of(p.x(), voxel), cell_of(p.y(), voxel), cell_of(p.z(), voxel)), &inserted);
+    if (inserted) out.push_back(p);
+  }
+  return out;
+}
+
+}  // namespace line_odom

@@ -1,0 +1,51 @@
+// A local map of the last scans' points in the odometry frame (beyond the paper): cubic voxels holding at most a few
+// points each, the voxels farther than the sensor's range from its last position dropped. The map the scan's points
+// are aligned to where the line intersections do not pin the motion down (point_alignment.hpp), as in KISS-ICP
+// (Vizzo et al., RA-L 2023).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "common/types.hpp"
+#include "registration/surface_map.hpp"
+
+namespace line_odom {
+
+class VoxelPointMap {
+ public:
+  VoxelPointMap() = default;
+  VoxelPointMap(double voxel, int max_points_per_voxel) : voxel_(voxel), per_voxel_(max_points_per_voxel) {}
+
+  // Adds `points` (sensor frame) at `pose` (T_world_sensor), up to the voxel's capacity, then drops the voxels
+  // farther than `max_distance` from the pose's position.
+  void add(const std::vector<Vec3>& points, const RigidTransform& pose, double max_distance);
+  void clear();
+  bool empty() const { return voxels_.empty(); }
+  std::size_t voxels() const { return voxels_.size(); }
+  double voxel() const { return voxel_; }
+
+  // The map point nearest to q among the 8 voxels around the voxel corner nearest q (exact within half a voxel), within
+  // `max_distance`; false when there is none.
+  bool nearest(const Vec3& q, double max_distance, Vec3* nearest_point) const;
+
+ private:
+  struct Voxel {
+    std::int64_t x, y, z;
+    int first;  // into points_: per_voxel_ slots from here
+    int count;
+  };
+  std::uint64_t key(std::int64_t x, std::int64_t y, std::int64_t z) const;
+  void rebuild_table();
+
+  double voxel_ = 1.0;
+  int per_voxel_ = 20;
+  VoxelTable table_;
+  std::vector<Voxel> voxels_;
+  std::vector<Vec3> points_;
+};
+
+// The points one per cube of `voxel` metres (the first of each), in input order: a scan thinned evenly in space.
+std::vector<Vec3> voxel_downsample(const std::vector<Vec3>& points, double voxel);
+
+}  // namespace line_odom
