@@ -82,6 +82,43 @@ def test_velodyne_pcap_every_rotation_with_ring_and_time(tmp_path):
     assert "ground_truth_tum.txt" not in {p.name for p in result.files}
 
 
+@pytest.mark.parametrize("path, method", [(VELODYNE_PCAP, "register_points"), (OS1_PCAP, "register_organized"),
+                                          (OSF, "register_organized")])
+def test_rings_and_point_times_reach_the_engine(tmp_path, monkeypatch, path, method):
+    """What replay hands the engine is the reader's own rings and times, and the engine deskews with them: a spy on
+    line_odom_core.Odometry sees, for each frame, the reader's ring (Velodyne; an Ouster scan is organized, its rows
+    are the beams) and time arrays in the call, and the engine's own stats say the sweep was corrected."""
+    import line_odom_core
+
+    frames = 4
+    with readers.open_source(path, frames=frames) as source:
+        read = list(source.frames())
+        beams = getattr(source, "beams", None)
+    calls = []
+    original = getattr(line_odom_core.Odometry, method)
+
+    def spy(self, xyz, stamp, **kwargs):
+        result = original(self, xyz, stamp, **kwargs)
+        calls.append((np.array(xyz), kwargs, dict(result.stats)))
+        return result
+
+    monkeypatch.setattr(line_odom_core.Odometry, method, spy)
+    replay(path, tmp_path / "out", frames=frames, progress=False)
+    assert len(calls) == len(read) >= 3
+    for (xyz, kwargs, stats), frame in zip(calls, read):
+        measured = np.isfinite(frame.xyz).all(axis=-1)  # a point without a return has no time that matters
+        # the message carries times as float32 (seconds from the stamp): equal to well under a microsecond
+        np.testing.assert_allclose(kwargs["time"][measured], frame.time[measured], rtol=0, atol=1e-7)
+        if method == "register_points":
+            np.testing.assert_array_equal(kwargs["ring"], frame.ring)
+            assert len(np.unique(kwargs["ring"])) == 32  # every beam of the sensor
+        else:
+            assert xyz.shape == frame.xyz.shape and xyz.shape[0] == beams  # organized: rows = beams
+        assert np.ptp(kwargs["time"][measured]) > 0.04  # one sweep (20 Hz Velodyne, 10 Hz Ouster)
+    # the first two frames have no velocity to deskew at; from the third on every sweep is corrected
+    assert [stats["deskewed"] for _, _, stats in calls[2:]] == [True] * (len(calls) - 2)
+
+
 def test_ouster_os1_128_pcap_within_its_reference_poses(tmp_path):
     out = tmp_path / "out"
     result = replay(OS1_PCAP, out, ground_truth=OS1_POSES, out_bag=tmp_path / "odom_bag",
