@@ -54,6 +54,9 @@ def test_oversized_and_contradicting_depth_images_are_refused_before_conversion(
     pub_info.publish(info)
     publish_and_wait(h, node, pub_img, convert.depth_to_image(seq.depth(0), stamp=stamp), stamp)
 
+    # an image over max_pixels with its own (matching) CameraInfo: refused from its size alone
+    pub_info.publish(convert.camera_info_from_K(seq.K, 3000, 3000))
+    time.sleep(0.5)
     big = convert.depth_to_image(np.full((3000, 3000), 2.0), stamp=stamp + 1.0)  # 9 Mpixel, 18 MB: over 4 Mpixel
     send_until_counted(h, node, pub_img, big, "frames_too_large", 1)
     rss0 = rss_mb(node.proc.pid)
@@ -65,6 +68,8 @@ def test_oversized_and_contradicting_depth_images_are_refused_before_conversion(
     grown = rss_mb(node.proc.pid) - rss0
     assert grown < RSS_MARGIN_MB, f"RSS grew {grown:.0f} MB over ten refused images"
 
+    pub_info.publish(info)  # the depth camera's own again
+    time.sleep(0.5)
     wrong_size = convert.depth_to_image(np.full((960, 1280), 2.0), stamp=stamp + 20.0)  # 640 x 480 CameraInfo
     send_until_counted(h, node, pub_img, wrong_size, "frames_malformed", 1)
     stamp1 = float(seq.stamps[1])
