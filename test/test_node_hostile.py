@@ -92,13 +92,28 @@ def test_parameters_are_read_only_and_diagnostics_go_on_under_sim_time(run_node)
     """use_sim_time with no /clock: the diagnostics keep coming (a steady timer); every parameter, use_sim_time
     included, is refused at runtime naming it, and an undeclared one is refused naming it."""
     node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "use_sim_time": True, "diagnostics.period": 0.2})
+    from rcl_interfaces.srv import GetParameters, ListParameters
+
+    # every client before the first call: the node discovers them while the diagnostics are awaited (a response to a
+    # client it has not discovered yet is dropped)
     client = h.node.create_client(SetParameters, node.topic("line_odom/set_parameters"))
+    lister = h.node.create_client(ListParameters, node.topic("line_odom/list_parameters"))
+    getter = h.node.create_client(GetParameters, node.topic("line_odom/get_parameters"))
     wait_diagnostics(h, node, lambda v: True, "diagnostics under sim time without /clock")
     for name, value in (("use_sim_time", ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=False)),
                         ("downsample", ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=3)),
                         ("base_frame", ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="x"))):
         result = _set(h, node, client, name, value)
         assert not result.successful and name in result.reason, (name, result.reason)
+    # every parameter the node has, each set to its own value in one request: each refused, naming it
+    listed = call_service(h, node, lister, ListParameters.Request()).result.names
+    assert {"use_sim_time", "preset", "downsample", "max_pixels", "ransac.inlier_threshold"} <= set(listed)
+    values = call_service(h, node, getter, GetParameters.Request(names=listed)).values
+    request = SetParameters.Request(parameters=[ParameterMsg(name=n, value=v) for n, v in zip(listed, values)])
+    results = call_service(h, node, client, request).results
+    assert len(results) == len(listed) > 50
+    for name, result in zip(listed, results):  # (rclpy's own start_type_description_service: rclpy's wording)
+        assert not result.successful and name in result.reason and "read-only" in result.reason, (name, result.reason)
     result = _set(h, node, client, "no_such.parameter", ParameterValue(type=ParameterType.PARAMETER_INTEGER,
                                                                        integer_value=1))
     assert not result.successful and "'no_such.parameter'" in result.reason, result.reason
