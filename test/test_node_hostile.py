@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.srv import GetParameters, SetParameters
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import Trigger
 
@@ -92,7 +92,7 @@ def test_parameters_are_read_only_and_diagnostics_go_on_under_sim_time(run_node)
     """use_sim_time with no /clock: the diagnostics keep coming (a steady timer); every parameter, use_sim_time
     included, is refused at runtime naming it, and an undeclared one is refused naming it."""
     node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "use_sim_time": True, "diagnostics.period": 0.2})
-    from rcl_interfaces.srv import GetParameters, ListParameters
+    from rcl_interfaces.srv import ListParameters
 
     # every client before the first call: the node discovers them while the diagnostics are awaited (a response to a
     # client it has not discovered yet is dropped)
@@ -131,16 +131,30 @@ def _reset_burst(h, node, clients):
     assert all(f.result().success for f in futures)
 
 
+def _parameter_burst(h, node, clients):
+    futures = [c.call_async(GetParameters.Request(names=["downsample"])) for c in clients]
+    h.wait_for(lambda: all(f.done() for f in futures), 60, "all 20 get_parameters responses", node)
+    assert [f.result().values[0].integer_value for f in futures] == [6] * len(clients)
+
+
 def test_twenty_concurrent_reset_calls_are_all_answered_idle_and_while_frames_flow(run_node):
-    """~/reset: 20 callers at once all get their answer, idle and while frames flow."""
+    """~/reset: 20 callers at once (each with the default service QoS) all get their answer, idle and while frames
+    flow. The parameter services too, for callers whose response queue holds the burst: with Fast DDS every client of
+    a service receives every response and keeps its QoS depth of them (NODE.md, "Lifecycle")."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
     seq = kitti_sequence("07", 4)
     node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "diagnostics.period": 0.2})
     pub = h.publisher(PointCloud2, node.topic("points"))
     clients = [h.node.create_client(Trigger, node.topic("line_odom/reset")) for _ in range(20)]
+    burst_qos = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE)
+    getters = [h.node.create_client(GetParameters, node.topic("line_odom/get_parameters"), qos_profile=burst_qos)
+               for _ in range(20)]
     h.wait_matched(pub, node, STARTUP_S)
-    for c in clients:
+    for c in clients + getters:
         assert c.wait_for_service(timeout_sec=STARTUP_S)
     _reset_burst(h, node, clients)  # idle
+    _parameter_burst(h, node, getters)
     msgs = [kitti_unorganized(seq, i, 50.0 + 0.1 * i) for i in range(4)]
     flowing = {"run": True, "k": 0}
 
@@ -158,7 +172,9 @@ def test_twenty_concurrent_reset_calls_are_all_answered_idle_and_while_frames_fl
     try:
         h.wait_for(lambda: len(h.odom) >= 2, 60, "frames flowing", node)
         _reset_burst(h, node, clients)
+        _parameter_burst(h, node, getters)
         _reset_burst(h, node, clients)
+        _parameter_burst(h, node, getters)
     finally:
         flowing["run"] = False
         thread.join()
