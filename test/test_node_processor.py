@@ -321,7 +321,8 @@ def test_overlapping_fields_and_fields_past_point_step_are_refused_as_malformed(
     for k in range(30):
         bad = convert.pointcloud2_from_xyz(np.random.default_rng(k).normal(size=(50, 3)).astype(np.float32),
                                            frame_id="lidar", stamp=1.0 + 0.1 * k)
-        bad.fields = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in zip("xyz", offsets)]
+        bad.fields = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1)
+                      for n, o in zip("xyz", offsets)]
         if extra is not None:
             bad.fields.append(PointField(name=extra[0], offset=extra[1], datatype=PointField.FLOAT32, count=1))
         assert bad.point_step == 12
