@@ -66,6 +66,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_batch.py": ("data", "slow"),
     "test_node_hostile.py": ("ros", "slow"),
     "test_node_lifecycle.py": ("ros", "slow"),
+    "test_node_scan.py": ("ros", "data", "slow"),
     "test_readers.py": ("data", "slow"),
 }
 
