@@ -120,9 +120,10 @@ SettingRange SettingRange::parse(const std::string& text) {
   return r;
 }
 
-bool SettingRange::contains(double x) const {
-  if (zero_is_off && x == 0.0) return true;
-  return (min_open ? x > min : x >= min) && (max_open ? x < max : x <= max);
+bool SettingRange::contains(long double x) const {
+  if (zero_is_off && x == 0.0L) return true;
+  const long double lo = min, hi = max;
+  return (min_open ? x > lo : x >= lo) && (max_open ? x < hi : x <= hi);
 }
 
 std::string SettingInfo::expected() const {
@@ -173,9 +174,9 @@ SettingValue checked_setting_value(const SettingInfo& info, const SettingValue& 
     }
     case SettingType::kInteger: {
       if (const auto* i = std::get_if<std::int64_t>(&value))
-        return info.range.contains(static_cast<double>(*i)) ? value : refuse();
+        return info.range.contains(static_cast<long double>(*i)) ? value : refuse();
       if (const auto* u = std::get_if<std::uint64_t>(&value))
-        return info.range.contains(static_cast<double>(*u)) ? value : refuse();
+        return info.range.contains(static_cast<long double>(*u)) ? value : refuse();
       const auto* d = std::get_if<double>(&value);
       if (d == nullptr || !std::isfinite(*d) || *d != std::floor(*d) || !info.range.contains(*d)) return refuse();
       if (*d >= 9223372036854775808.0) return static_cast<std::uint64_t>(*d);

@@ -38,7 +38,8 @@ struct SettingRange {
 
   // "[0, 90)", "(0, 10]", "> 0", ">= 1", "<= 5", "0 (off) or [3, 20]", "" (any); std::logic_error otherwise.
   static SettingRange parse(const std::string& text);
-  bool contains(double x) const;
+  // long double: exact for every 64-bit integer (x86-64's 80-bit and AArch64's 128-bit formats)
+  bool contains(long double x) const;
 };
 
 // What a row tells about its setting: the schema the bindings export, and the words of its errors.
