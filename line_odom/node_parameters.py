@@ -31,8 +31,9 @@ class NodeParameter(ConfigEntry):
     @property
     def expected(self) -> str:
         if self.type is list:
-            return ("3 finite numbers [x, y, z]" if self.vector else
-                    "6 values [x, y, z, roll, pitch, yaw] or 7 [x, y, z, qx, qy, qz, qw]")
+            unit = f" ({self.unit})" if self.unit else ""
+            return (f"3 finite numbers [x, y, z]{unit}" if self.vector else
+                    f"6 values [x, y, z, roll, pitch, yaw]{unit} or 7 [x, y, z, qx, qy, qz, qw]")
         if self.type is str and not self.choices:
             return "str (a non-empty name)"
         return super().expected
@@ -44,14 +45,14 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("odom_frame", str, "odom", "frame of the published pose (Odometry header.frame_id, TF parent)"),
     NodeParameter("base_frame", str, "base_link", "robot base frame (Odometry child_frame_id, TF child)"),
     NodeParameter("publish_tf", bool, True, "broadcast odom_frame -> base_frame on /tf"),
-    NodeParameter("base_to_sensor", list, [0.0] * 6, "pose of the sensor in the base frame, T_base_sensor: "
-                  "[x, y, z, roll, pitch, yaw] or [x, y, z, qx, qy, qz, qw]", unit="m, rad"),
+    NodeParameter("base_to_sensor", list, [0.0] * 6, "pose of the sensor in the base frame, T_base_sensor",
+                  unit="m, rad"),
     NodeParameter("base_to_sensor_from_tf", bool, False, "take T_base_sensor from /tf_static instead of base_to_sensor: "
                   "the transform base_frame -> the input's header.frame_id (robot_state_publisher, "
                   "static_transform_publisher), looked up at the first frame that has it; frames before it are "
                   "dropped and counted (frames_no_extrinsic)"),
     NodeParameter("initial_pose", list, [0.0] * 6, "pose of the base in the odom frame at the first frame and after "
-                  "a reset: [x, y, z, roll, pitch, yaw] or [x, y, z, qx, qy, qz, qw]", unit="m, rad"),
+                  "a reset", unit="m, rad"),
     NodeParameter("path.max_poses", int, 1000, "poses kept in the published nav_msgs/Path (oldest dropped)", 1,
                   1_000_000),
     NodeParameter("path.period", float, 0.0, "time (of frame stamps) between published paths, 0 = every frame; a "
@@ -77,9 +78,9 @@ NODE_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("imu.enabled", bool, False, "turn each scan's prediction by the rotation integrated from the gyro "
                   "on topic 'imu' (sensor_msgs/Imu angular_velocity) between the previous and this scan's stamp; the "
                   "translation stays the constant-velocity prediction's"),
-    NodeParameter("imu.base_to_imu", list, [0.0] * 6, "pose of the IMU in the base frame, T_base_imu: "
-                  "[x, y, z, roll, pitch, yaw] or [x, y, z, qx, qy, qz, qw]; with base_to_sensor_from_tf "
-                  "it comes from /tf_static instead (base_frame -> the Imu messages' header.frame_id)", unit="m, rad"),
+    NodeParameter("imu.base_to_imu", list, [0.0] * 6, "pose of the IMU in the base frame, T_base_imu; with "
+                  "base_to_sensor_from_tf it comes from /tf_static instead (base_frame -> the Imu messages' "
+                  "header.frame_id)", unit="m, rad"),
     NodeParameter("imu.gyro_bias", list, [0.0] * 3, "gyro bias (IMU axes) subtracted from every angular_velocity, "
                   "where the learned bias starts", unit="rad/s", vector=True),
     NodeParameter("imu.bias_gain", float, 0.05, "share of each scan interval's difference between the gyro's and the "
