@@ -3,10 +3,10 @@
 // change it. Applying a value, dumping a config, checking one and the schema the bindings export all read the rows.
 // A setting's default is its member's own initializer: the value in a default-constructed struct.
 //
-//   static const SettingsTable<LineFitConfig> table("feature setting", {
-//       number("max_gap", &LineFitConfig::max_gap, "[0, 1000]", "cells", "missing cells bridged inside one line"),
-//       flag("enabled", &PlaneFitConfig::enabled, "fit planes"), ...});
-//   outer.add("lines", &FeatureConfig::lines, table);  // its rows as lines.max_gap, ... of FeatureConfig
+//   SettingsTable<PlaneFitConfig> planes("feature parameter", {
+//       flag("enabled", &PlaneFitConfig::enabled, "fit planes"),
+//       number("max_rms", &PlaneFitConfig::max_rms, "(0, 10]", "m", "point-to-plane rms"), ...});
+//   features.add("planes", &FeatureConfig::planes, planes);  // its rows as planes.enabled, ... of FeatureConfig
 #pragma once
 
 #include <algorithm>

@@ -165,8 +165,8 @@ SettingsTable<MotionOptions> motion_pass_settings() {
            "refine every new best hypothesis on its inliers (LO-RANSAC)"),
       flag("pretest", &MotionOptions::pretest, "score a random subset first and drop clearly worse hypotheses"),
       number("min_inlier_contrast", &MotionOptions::min_inlier_contrast, "[0, 1e9]", "",
-             "success needs an inlier weight of at least this many times the chance agreement (the mean inlier "
-             "weight of the estimate pushed 20 thresholds 8 generic ways) plus 3 of its standard deviations"),
+             "success needs an inlier weight of at least this times the chance agreement c plus 3 sqrt(c) (c: the "
+             "mean inlier weight of the estimate pushed 20 thresholds 8 generic ways)"),
       choice("solve_7l_method", &MotionOptions::solve_7l_method,
              {{"gauss_newton", Solve7LMethod::kGaussNewton},
               {"alternating_projection", Solve7LMethod::kAlternatingProjection}},
