@@ -15,6 +15,7 @@
 #include "common/splitmix64.hpp"
 #include "common/stopwatch.hpp"
 #include "features/line_selection.hpp"
+#include "odometry/engine_settings.hpp"
 #include "registration/line_pair_table.hpp"
 #include "registration/refine.hpp"
 
@@ -163,54 +164,11 @@ Mat6 common_directions(const Mat6& a, const Mat6& b, double cosine) {
 }
 
 Odometry::Odometry(const OdometryConfig& config) : config_(config), sensor_(make_sensor_model(config.sensor)) {
-  config_.features.validate();
-  if (config_.downsample < 1) throw std::invalid_argument("downsample: expected >= 1");
-  if (config_.registration.passes < 1) throw std::invalid_argument("registration.passes: expected >= 1");
-  if (config_.registration.max_lines < 0) throw std::invalid_argument("registration.max_lines: expected >= 0");
-  if (config_.registration.persistence_window < 0)
-    throw std::invalid_argument("registration.persistence_window: expected >= 0 (frames; 0: off)");
+  odometry_settings().validate(config_);
   persistence_ = MotionPersistence(config_.registration.persistence_window);
-  if (config_.registration.first_motion_pairs_per_line < 0)
-    throw std::invalid_argument("registration.first_motion_pairs_per_line: expected >= 0");
-  if (config_.registration.window < 1 || config_.registration.window > 10)
-    throw std::invalid_argument("registration.window: expected 1 to 10 scans, got " +
-                                std::to_string(config_.registration.window));
   window_ = FeatureWindow(config_.registration.window);
   const EvidenceOptions& ev = config_.evidence;
-  if (!(ev.voxel >= 0.01)) throw std::invalid_argument("evidence.voxel: expected >= 0.01 m");
-  if (ev.map_scans < 1 || ev.map_scans > 100) throw std::invalid_argument("evidence.map_scans: expected 1 to 100");
-  if (ev.map_points < 100) throw std::invalid_argument("evidence.map_points: expected >= 100");
-  if (ev.max_points < 100) throw std::invalid_argument("evidence.max_points: expected >= 100");
-  if (ev.min_points < 3) throw std::invalid_argument("evidence.min_points: expected >= 3 (a plane)");
-  if (!(ev.min_planarity >= 0.0 && ev.min_planarity <= 1.0))
-    throw std::invalid_argument("evidence.min_planarity: expected 0 to 1");
-  if (!(ev.inlier_distance > 0.0)) throw std::invalid_argument("evidence.inlier_distance: expected > 0 m");
-  if (ev.iterations < 1) throw std::invalid_argument("evidence.iterations: expected >= 1");
-  if (!(ev.significance > 0.0)) throw std::invalid_argument("evidence.significance: expected > 0");
-  if (ev.min_matches < 1) throw std::invalid_argument("evidence.min_matches: expected >= 1");
-  if (!(ev.search_range >= 0.0)) throw std::invalid_argument("evidence.search_range: expected >= 0 m");
   local_map_ = LocalMap(ev.map_scans, ev.map_points, ev.voxel);
-  const PointRefineOptions& pts = config_.points;
-  if (!(pts.weight >= 0.0)) throw std::invalid_argument("points.weight: expected >= 0 (0: off)");
-  if (!(pts.voxel >= 0.01)) throw std::invalid_argument("points.voxel: expected >= 0.01 m");
-  if (pts.max_downsample < 1) throw std::invalid_argument("points.max_downsample: expected >= 1");
-  if (pts.stride < 1) throw std::invalid_argument("points.stride: expected >= 1");
-  if (!(pts.huber > 0.0)) throw std::invalid_argument("points.huber: expected > 0 m");
-  if (pts.iterations < 1) throw std::invalid_argument("points.iterations: expected >= 1");
-  if (pts.min_points < 3) throw std::invalid_argument("points.min_points: expected >= 3 (a plane)");
-  if (!(pts.min_planarity >= 0.0 && pts.min_planarity <= 1.0))
-    throw std::invalid_argument("points.min_planarity: expected 0 to 1");
-  if (!(pts.max_translation >= 0.0) || !(pts.max_rotation_deg >= 0.0))
-    throw std::invalid_argument("points.max_translation, points.max_rotation_deg: expected >= 0");
-  const int trend = config_.sensor.deskew_trend;
-  if (trend != 0 && (trend < 3 || trend > 20))
-    throw std::invalid_argument("sensor.deskew_trend: expected 0 (off) or 3 to 20 frames, got " + std::to_string(trend));
-  if (config_.sensor.deskew_iterations < 0 || config_.sensor.deskew_iterations > 10)
-    throw std::invalid_argument("sensor.deskew_iterations: expected 0 (deskewed at the prediction only) to 10, got " +
-                                std::to_string(config_.sensor.deskew_iterations));
-  if (config_.threads < 0 || config_.threads > 256)
-    throw std::invalid_argument("threads: expected 0 (one per hardware thread) to 256, got " +
-                                std::to_string(config_.threads));
   const int threads = config_.threads > 0 ? config_.threads : static_cast<int>(std::thread::hardware_concurrency());
   if (threads > 1) pool_ = std::make_shared<WorkerPool>(threads);
 }

@@ -10,7 +10,6 @@
 #include <memory>
 #include <string>
 #include <utility>
-#include <variant>
 #include <vector>
 
 #include "common/scan_features.hpp"
@@ -362,13 +361,6 @@ class Odometry {
   LocalMap local_map_;       // the last registered scans' points, in the previous scan's frame (evidence.*)
   std::shared_ptr<WorkerPool> pool_;  // null with one thread; copies of an Odometry take turns on it
 };
-
-// Dotted settings ("ransac.max_iterations", ...) as in the ROS parameters and YAML presets.
-using SettingValue = std::variant<bool, std::int64_t, double, std::string>;
-// Sets one setting; returns an empty string on success, else what was wrong (unknown name, wrong type).
-std::string apply_setting(OdometryConfig* config, const std::string& name, const SettingValue& value);
-// Every setting with its current value, in a stable order.
-std::vector<std::pair<std::string, SettingValue>> config_settings(const OdometryConfig& config);
 
 // Velocity scaling of a motion: exp(alpha * log(T)) on SO(3) x R^3 (rotation angle and translation scaled).
 RigidTransform scale_motion(const RigidTransform& T, double alpha);
