@@ -70,6 +70,8 @@ setup(
         ("share/" + PACKAGE + "/rviz", sorted(glob.glob("rviz/*.rviz"))),
     ],
     install_requires=["setuptools", "numpy", "scipy", "pyyaml"],
+    # `line_odom batch` only (the node never imports it); pinned in requirements/dev.txt, which make setup installs
+    extras_require={"batch": ["dask", "distributed"]},
     zip_safe=False,
     maintainer="line_odom maintainers",
     maintainer_email="maintainers@line-odom.dev",

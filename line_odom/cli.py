@@ -71,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ground-truth", metavar="FILE", default=None, dest="ground_truth",
                    help="a TUM or KITTI trajectory file (KITTI: one pose a frame) instead of the recording's own")
     p.add_argument("--plot-features", metavar="N", type=int, nargs="?", const=0, default=None, dest="plot_features",
-                   help="also draw frame N's points and fitted H/V lines, top view, to DIR/features.png (default 0)")
+                   help="also draw frame N's kept points and the H/V lines it was registered with (the node's "
+                        "~/scan and ~/lines), top view, to DIR/features.png (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory for trajectories, metrics and plot")
     p.add_argument("--params", metavar="YAML", default=None, help="ROS 2 parameter file (or preset name) for the node "
                                                               "(default: the preset the recording suggests)")

@@ -84,74 +84,23 @@ def plot_trajectory(path: str | Path, estimate: Trajectory, ground_truth: Trajec
     return path
 
 
-def _feature_settings(values: dict, preset: str) -> dict:
-    from line_odom_core import feature_config
-
-    return {name: values[name] for name in feature_config(preset) if name in values}
+LINE_NAMES = {"h_lines": "H-lines (rows)", "v_lines": "V-lines (columns)"}
 
 
-UNIFORM_COLS = 1024  # azimuth columns of a uniform model that leaves sensor.cols at 0
+def _view_points(scan) -> np.ndarray:
+    """(M, 3) of a ~/scan PointCloud2 (none when the engine kept no point)."""
+    from line_odom import convert
+
+    if scan is None or int(scan.width) * int(scan.height) == 0:
+        return np.zeros((0, 3))
+    xyz = convert.pointcloud2_to_arrays(scan).xyz.reshape(-1, 3)
+    return xyz[np.isfinite(xyz).all(axis=1)]
 
 
-def _ring_image(xyz: np.ndarray, ring: np.ndarray, cols: int, lo: float, hi: float) -> np.ndarray:
-    """(rings, cols, 3) range image: row = ring, column = azimuth bin, the nearest point of each cell, NaN holes."""
-    rng = np.linalg.norm(xyz, axis=1)
-    keep = np.isfinite(rng) & (rng >= lo) & (rng <= hi) & (ring >= 0)
-    xyz, ring, rng = xyz[keep], ring[keep].astype(np.int64), rng[keep]
-    rows = int(ring.max()) + 1 if len(ring) else 1
-    col = ((np.arctan2(xyz[:, 1], xyz[:, 0]) + np.pi) / (2 * np.pi) * cols).astype(np.int64) % cols
-    cell = ring * cols + col
-    order = np.lexsort((rng, cell))
-    first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]] if len(order) else order
-    image = np.full((rows * cols, 3), np.nan)
-    image[cell[first]] = xyz[first]
-    return image.reshape(rows, cols, 3)
-
-
-def scan_features(frame, config, K: np.ndarray | None = None) -> tuple[np.ndarray, dict, str]:
-    """(the points the engine keeps of `frame` (M, 3), line_odom_core.extract_features of its range image, a note)
-    with `config`'s sensor model, ranges, downsampling and line settings. The engine returns no lines per registered
-    frame, so they are fitted here again from the same range image; organize_points takes a preset sensor model only,
-    so a uniform model's clouds with rings are binned here (row = ring, sensor.cols azimuth columns)."""
-    import line_odom_core as core
-    from line_odom_core import _core
-
-    values = config.as_dict()
-    step = int(values["downsample"])
-    lo, hi = float(values["sensor.min_range"]), float(values["sensor.max_range"])
-    note = ""
-    if frame.depth is not None:
-        if K is None:
-            raise ValueError("K: a depth frame's lines need the camera intrinsics")
-        image = core.organize_depth(np.ascontiguousarray(frame.depth, dtype=np.float32), np.asarray(K, float), lo, hi,
-                                    step)["points"]
-        preset = "tum"
-    elif frame.xyz.ndim == 3:
-        image = np.ascontiguousarray(frame.xyz[::step, ::step], dtype=np.float64)
-        rng = np.linalg.norm(image, axis=2)
-        image[~((rng >= lo) & (rng <= hi))] = np.nan
-        preset = "kitti"
-    else:
-        ring = None if frame.ring is None else np.ascontiguousarray(frame.ring, dtype=np.int32)
-        model = values["sensor.model"]
-        xyz = np.ascontiguousarray(frame.xyz, dtype=np.float64)
-        if model in _core.sensor_presets():
-            image = core.organize_points(xyz, ring, model, lo, hi, step)["points"]
-        elif ring is not None:
-            cols = int(values["sensor.cols"]) or UNIFORM_COLS
-            image = _ring_image(xyz, ring, cols, lo, hi)[::step, ::step]
-            note = f"{model} sensor model: rows by ring, {cols} azimuth columns"
-        else:
-            image = core.organize_points(xyz, None, "hdl64", lo, hi, step)["points"]
-            note = f"{model} sensor model without rings drawn in the HDL-64E model"
-        preset = "kitti"
-    features = core.extract_features(image, _feature_settings(values, preset), preset)
-    points = image.reshape(-1, 3)
-    return points[np.isfinite(points).all(axis=1)], features, note
-
-
-def plot_features(path: str | Path, frame, config, K: np.ndarray | None = None, title: str = "line_odom") -> Path:
-    """features.png: top view of one scan's kept points and the lines fitted along its rows (H) and columns (V)."""
+def plot_registered_view(path: str | Path, scan, lines, *, depth: bool = False, title: str = "line_odom") -> Path:
+    """features.png: a top view of what the node shows rviz for one frame: the points of its ~/scan (the points the
+    engine kept) and the segments of its ~/lines markers (the H- and V-lines it registered, in the markers' colours).
+    A LiDAR's frame has z up: looking down z; a camera's optical frame has y down: looking down -y."""
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -159,16 +108,16 @@ def plot_features(path: str | Path, frame, config, K: np.ndarray | None = None, 
     from matplotlib.collections import LineCollection
 
     path = Path(path)
-    points, features, note = scan_features(frame, config, K)
-    # LiDAR frames have z up: look down z; a camera's optical frame has y down: look down -y (x right, z ahead)
-    a, b = (0, 2) if frame.depth is not None else (0, 1)
+    points = _view_points(scan)
+    a, b = (0, 2) if depth else (0, 1)
     fig, ax = plt.subplots(figsize=(9, 8))
     ax.scatter(points[:, a], points[:, b], s=1.0, c="0.5", linewidths=0, label=f"points kept ({len(points)})")
-    for key, colour, width, name in (("v_lines", "C3", 0.6, "V-lines (columns)"),
-                                     ("h_lines", "C0", 1.0, "H-lines (rows)")):
-        segments = np.asarray(features[key]["segments"]).reshape(-1, 2, 3)
-        ax.add_collection(LineCollection(segments[:, :, [a, b]], colors=colour, linewidths=width,
-                                         label=f"{name}: {len(segments)}"))
+    markers = sorted(lines.markers if lines is not None else [], key=lambda m: m.ns != "v_lines")  # V under H
+    for marker in markers:
+        ends = np.array([[p.x, p.y, p.z] for p in marker.points], dtype=float).reshape(-1, 2, 3)
+        colour = (marker.color.r, marker.color.g, marker.color.b)
+        ax.add_collection(LineCollection(ends[:, :, [a, b]], colors=[colour], linewidths=0.6 if marker.ns == "v_lines"
+                                         else 1.0, label=f"{LINE_NAMES.get(marker.ns, marker.ns)}: {len(ends)}"))
     if len(points):  # the scene around the sensor (at the origin), not its few farthest returns
         low = np.minimum(np.percentile(points[:, [a, b]], 3, axis=0), 0.0)
         high = np.maximum(np.percentile(points[:, [a, b]], 97, axis=0), 0.0)
@@ -180,7 +129,7 @@ def plot_features(path: str | Path, frame, config, K: np.ndarray | None = None, 
     ax.set_aspect("equal", adjustable="box")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize=8, markerscale=10)
-    ax.set_title(title + (f"\n{note}" if note else ""), fontsize=10)
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -81,12 +81,36 @@ def _rclpy_types(kind: str):
     return {"pointcloud": PointCloud2, "depth": Image, "info": CameraInfo}
 
 
+class RegisteredView:
+    """What the node sends rviz for one frame (the index-th input frame): its ~/scan and ~/lines messages, asked of the
+    processor for that frame only (plot_features draws them)."""
+
+    def __init__(self, processor, index: int):
+        self.processor, self.index = processor, index
+        self.scan = self.lines = None
+        self.registered = False
+
+    def before(self, n: int) -> None:
+        self.processor.scan_wanted = self.processor.lines_wanted = n == self.index
+
+    def after(self, n: int, out) -> None:
+        if n == self.index and out is not None:
+            self.scan, self.lines, self.registered = out.scan, out.lines, True
+
+    def check(self, frames_in: int, what: str) -> None:
+        if self.index >= frames_in:
+            raise ValueError(f"--plot-features {self.index}: {what} has {frames_in} frame(s) (0 .. {frames_in - 1})")
+        if not self.registered:
+            raise ValueError(f"--plot-features {self.index}: that frame of {what} was not registered (dropped: "
+                             f"see frames_dropped in metrics.json); choose another")
+
+
 def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frames: int | None = None,
                    progress: ProgressBar | None = None, guess_topic: str | None = None,
-                   imu_topic: str | None = None) -> ReplayRun:
+                   imu_topic: str | None = None, view: RegisteredView | None = None) -> ReplayRun:
     """Every frame of the input topic through the processor, in bag order (with the nav_msgs/Odometry messages of
     guess_topic as the motion guess, guess.enabled, and the sensor_msgs/Imu messages of imu_topic as the gyro,
-    imu.enabled)."""
+    imu.enabled); view: keeps one frame's ~/scan and ~/lines."""
     from nav_msgs.msg import Odometry
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Imu
@@ -131,7 +155,11 @@ def run_in_process(reader: bags.BagReader, inp: ReplayInput, processor, *, frame
             names = {str(f.name) for f in msg.fields}
             fields["frames_with_ring"] += "ring" in names
             fields["frames_with_time"] += bool(names & set(convert.TIME_FIELDS))
+        if view is not None:
+            view.before(n_in - 1)
         out = processor.process_pointcloud(msg) if inp.kind == "pointcloud" else processor.process_depth(msg)
+        if view is not None:
+            view.after(n_in - 1, out)
         if out is not None:
             stamps.append(out.stamp)
             poses.append(out.T_odom_base @ processor.T_base_sensor)
@@ -233,16 +261,19 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
         gt_data = bags.read_ground_truth(reader)
         gt = evaluation.Trajectory(gt_data[1], gt_data[0]) if gt_data is not None else None
         label = f"replay {Path(bag).name}"
+        from line_odom.processor import OdometryProcessor
+
+        view = None
         with ProgressBar(label, enabled=None if progress else False) as bar:
             if realtime:
                 run = replay_realtime.run_realtime(reader, inp, params=params, overrides=overrides, frames=frames,
                                                    progress=bar, rate=rate, guess_topic=guess_topic,
                                                    imu_topic=imu_topic)
             else:
-                from line_odom.processor import OdometryProcessor
-
-                run = run_in_process(reader, inp, OdometryProcessor(config, settings), frames=frames, progress=bar,
-                                     guess_topic=guess_topic, imu_topic=imu_topic)
+                processor = OdometryProcessor(config, settings)
+                view = None if plot_features is None else RegisteredView(processor, plot_features)
+                run = run_in_process(reader, inp, processor, frames=frames, progress=bar, guess_topic=guess_topic,
+                                     imu_topic=imu_topic, view=view)
         if len(run.estimate) == 0:
             raise RuntimeError(f"{bag}: the node produced no pose from {run.frames_in} frame(s) on {inp.topic} "
                                f"(counters: {run.counters})")
@@ -258,11 +289,17 @@ def replay_bag(bag: str | Path, out_dir: str | Path, *, params: str | None = Non
         metrics, files = write_results(out_dir, run, gt, title or f"{Path(bag).name} ({inp.topic})",
                                        _input_metrics(run, info))
         if plot_features is not None:
-            from line_odom.plot import plot_features as draw
+            from line_odom.plot import plot_registered_view
 
-            frame, K = _bag_frame(reader, inp, plot_features)
-            files.append(draw(Path(out_dir) / FEATURES_PNG, frame, config, K,
-                              title=f"{Path(bag).name} {inp.topic}, frame {plot_features}"))
+            if view is None:  # the node ran in its own process: the same frames through its processing core here
+                processor = OdometryProcessor(config, settings)
+                view = RegisteredView(processor, plot_features)
+                run_in_process(reader, inp, processor, frames=min(plot_features + 1, run.frames_in),
+                               guess_topic=guess_topic, imu_topic=imu_topic, view=view)
+            view.check(run.frames_in, f"{Path(bag).name} {inp.topic}")
+            files.append(plot_registered_view(Path(out_dir) / FEATURES_PNG, view.scan, view.lines,
+                                              depth=inp.kind == "depth",
+                                              title=f"{Path(bag).name} {inp.topic}, frame {plot_features}"))
         if out_bag is not None:
             files.append(write_output_bag(out_bag, run, reader, out_bag_storage))
     return ReplayResult(metrics, files, run, gt, info)
@@ -285,30 +322,6 @@ def _bag_sensor(reader: bags.BagReader, inp: ReplayInput):
     return sensor_preset.for_points(cloud.xyz, cloud.ring, f"clouds on {inp.topic}")
 
 
-def _bag_frame(reader: bags.BagReader, inp: ReplayInput, index: int):
-    """(Frame, K or None) of the bag's index-th message on the input topic, for plot_features."""
-    from rclpy.serialization import deserialize_message
-
-    from line_odom.readers import Frame
-
-    types = _rclpy_types(inp.kind)
-    K = None
-    if inp.info_topic:
-        for message in reader.messages([inp.info_topic]):
-            K = convert.camera_info_to_K(deserialize_message(message.raw, types["info"]))
-            break
-    for i, message in enumerate(reader.messages([inp.topic])):
-        if i == index:
-            msg = deserialize_message(message.raw, types[inp.kind])
-            stamp_ns = convert.stamp_to_ns(msg.header.stamp)
-            if inp.kind == "depth":
-                return Frame(stamp_ns, depth=convert.image_to_depth(msg)), K
-            cloud = convert.pointcloud2_to_arrays(msg)
-            return Frame(stamp_ns, cloud.xyz, cloud.ring, None, cloud.intensity), None
-    raise ValueError(f"--plot-features {index}: {inp.topic} has {reader.counts.get(inp.topic, 0)} frame(s) "
-                     f"(0 .. {reader.counts.get(inp.topic, 0) - 1})")
-
-
 # ------------------------------------------------------------------------------------------- other recordings
 
 
@@ -322,17 +335,18 @@ def frame_message(frame, frame_id: str):
                                         frame_id=frame_id, stamp=stamp)
 
 
-def run_source(source, processor, *, progress: ProgressBar | None = None, on_frame=None) -> ReplayRun:
-    """Every frame of a reader's source through the processor, in recording order. on_frame(index, frame): called
-    with each frame before it is registered (plot_features keeps one)."""
+def run_source(source, processor, *, progress: ProgressBar | None = None,
+               view: RegisteredView | None = None) -> ReplayRun:
+    """Every frame of a reader's source through the processor, in recording order; view: keeps one frame's ~/scan and
+    ~/lines."""
     camera_info = height_width = None
     stamps, poses, odom_msgs, latencies = [], [], [], []
     counts = {"frames_with_ring": 0, "frames_with_time": 0}
     rows_from = None
     n_in = 0
     for frame in source.frames():
-        if on_frame is not None:
-            on_frame(n_in, frame)
+        if view is not None:
+            view.before(n_in)
         n_in += 1
         processor.note_received()
         msg = frame_message(frame, source.frame_id)
@@ -350,6 +364,8 @@ def run_source(source, processor, *, progress: ProgressBar | None = None, on_fra
                     np.ascontiguousarray(frame.xyz.reshape(-1, 3)),
                     ring=None if frame.ring is None else frame.ring.astype(np.int32))["row_method"]
             out = processor.process_pointcloud(msg)
+        if view is not None:
+            view.after(n_in - 1, out)
         if out is not None:
             stamps.append(out.stamp)
             poses.append(out.T_odom_base @ processor.T_base_sensor)
@@ -396,15 +412,10 @@ def replay_source(source, out_dir: str | Path, *, params: str | None = None,
     suggested = {} if params is not None else dict(source.sensor.overrides)
     config, settings = node_settings(source.kind, params or source.sensor.preset, {**suggested, **(overrides or {})})
     processor = OdometryProcessor(config, settings)
-    kept = {}
-
-    def keep(index, frame):
-        if index == plot_features:
-            kept["frame"] = frame
-
+    view = None if plot_features is None else RegisteredView(processor, plot_features)
     label = f"replay {source.path.name}"
     with ProgressBar(label, enabled=None if progress else False) as bar:
-        run = run_source(source, processor, progress=bar, on_frame=keep if plot_features is not None else None)
+        run = run_source(source, processor, progress=bar, view=view)
     if run.frames_in == 0:
         raise RuntimeError(f"{source.path}: no frame to replay")
     if len(run.estimate) == 0:
@@ -417,14 +428,13 @@ def replay_source(source, out_dir: str | Path, *, params: str | None = None,
             "notes": list(source.notes)}
     metrics, files = write_results(out_dir, run, gt, title or f"{source.path.name} ({source.format})",
                                    _input_metrics(run, info))
-    if plot_features is not None:
-        if "frame" not in kept:
-            raise ValueError(f"--plot-features {plot_features}: the recording has {run.frames_in} frame(s) (0 .. "
-                             f"{run.frames_in - 1})")
-        from line_odom.plot import plot_features as draw
+    if view is not None:
+        from line_odom.plot import plot_registered_view
 
-        files.append(draw(Path(out_dir) / FEATURES_PNG, kept["frame"], config, source.K,
-                          title=f"{source.path.name}, frame {plot_features}"))
+        view.check(run.frames_in, "the recording")
+        files.append(plot_registered_view(Path(out_dir) / FEATURES_PNG, view.scan, view.lines,
+                                          depth=source.kind == "depth",
+                                          title=f"{source.path.name}, frame {plot_features}"))
     if out_bag is not None:
         files.append(write_output_bag(out_bag, run, None, out_bag_storage, gt))
     return ReplayResult(metrics, files, run, gt, info)

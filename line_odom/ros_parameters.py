@@ -1,6 +1,7 @@
-"""The node's ROS parameters: every engine setting and node parameter declared with its description and range (the
-preset supplies the defaults), read once into NodeSettings and the engine's Config, and refused at runtime: none is
-applied live. A bad value is a ParameterSetupError naming it (the node exits 2 with that one line)."""
+"""The node's ROS parameters: every engine setting and node parameter declared with a descriptor built from its row
+(description, range, read_only unless the row says a running node may change it), the preset supplying the defaults,
+read once into NodeSettings and the engine's Config, and refused at runtime: none is applied live. A bad value is a
+ParameterSetupError naming it (the node exits 2 with that one line)."""
 from __future__ import annotations
 
 import re
@@ -11,29 +12,37 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 
 from line_odom.node_parameters import NODE_PARAMETERS, NodeSettings
-from line_odom_core.config import CHOICES, config_schema, load_config
+from line_odom_core.config import ConfigEntry, config_schema, load_config
 
 INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+_PTYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+           float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
+           list: ParameterType.PARAMETER_DOUBLE_ARRAY}
 
 
-def _descriptor(name: str, ptype: int, description: str, lo=None, hi=None, constraints: str = "",
-                integer: bool = False) -> ParameterDescriptor:
-    d = ParameterDescriptor(name=name, type=ptype, description=description, read_only=True,
-                            additional_constraints=constraints)
-    if lo is not None or hi is not None:
-        if integer:
+def parameter_descriptor(entry: ConfigEntry) -> ParameterDescriptor:
+    """The ROS descriptor of an engine setting or node parameter: its description; its range as an IntegerRange or
+    FloatingPointRange (ROS ranges are closed: an open end or a 0 that switches the feature off is in
+    additional_constraints, which always says what the parameter accepts, unit included); read_only unless a running
+    node may change it."""
+    d = ParameterDescriptor(name=entry.name, type=_PTYPES[entry.type], description=entry.description,
+                            read_only=not entry.runtime,
+                            additional_constraints="" if entry.expected in ("bool", "str") else entry.expected)
+    if entry.type in (int, float) and (entry.min is not None or entry.max is not None):
+        lo = 0 if entry.zero_is_off and (entry.min is None or entry.min > 0) else entry.min
+        if entry.type is int:
             d.integer_range = [IntegerRange(from_value=int(lo if lo is not None else INT64_MIN),
-                                            to_value=int(hi if hi is not None else INT64_MAX), step=0)]
+                                            to_value=int(entry.max if entry.max is not None else INT64_MAX), step=0)]
         else:
             d.floating_point_range = [FloatingPointRange(from_value=float(lo if lo is not None else -1e308),
-                                                         to_value=float(hi if hi is not None else 1e308),
+                                                         to_value=float(entry.max if entry.max is not None else 1e308),
                                                          step=0.0)]
     return d
 
 
-_PTYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-           float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
-           list: ParameterType.PARAMETER_DOUBLE_ARRAY}
+PRESET_PARAMETER = ConfigEntry("preset", str, "kitti_hdl64", "engine + node defaults: a preset name (kitti_hdl64, "
+                               "tum_kinect, vlp16, ouster_os128) or a ROS 2 parameter YAML path; individual "
+                               "parameters override it")
 
 
 class ParameterSetupError(ValueError):
@@ -81,10 +90,7 @@ class ParameterMixin:
     def declare_and_load(self) -> None:
         """Declares every parameter (the preset gives the defaults), reads them into ``self.settings`` and
         ``self.config``; ParameterSetupError naming the parameter or file when one is bad."""
-        preset = self._declare("preset", "kitti_hdl64", _descriptor(
-            "preset", ParameterType.PARAMETER_STRING,
-            "engine + node defaults: a preset name (kitti_hdl64, tum_kinect, vlp16, ouster_os128) or a ROS 2 "
-            "parameter YAML path; individual parameters override it"))
+        preset = self._declare("preset", PRESET_PARAMETER.default, parameter_descriptor(PRESET_PARAMETER))
         try:
             base = load_config(preset)
         except Exception as err:  # noqa: BLE001 - YAML syntax, encoding, I/O and schema errors alike: one line
@@ -102,12 +108,9 @@ class ParameterMixin:
 
         node_values = {}
         for p in NODE_PARAMETERS:
-            ptype = _PTYPES[p.type]
-            constraints = ("one of " + ", ".join(p.choices)) if p.choices else ""
-            desc = _descriptor(p.name, ptype, p.description, p.min, p.max, constraints, integer=p.type is int)
             default = preset_node[p.name]
             node_values[p.name] = self._declare(p.name, [float(v) for v in default] if p.type is list else default,
-                                                desc)
+                                                parameter_descriptor(p))
         try:
             self.settings = NodeSettings.from_mapping(node_values)
         except ValueError as err:
@@ -115,10 +118,7 @@ class ParameterMixin:
 
         engine_values = {}
         for e in schema:
-            ptype = _PTYPES[e.type]
-            constraints = ("one of " + ", ".join(CHOICES[e.name])) if e.name in CHOICES else ""
-            desc = _descriptor(e.name, ptype, e.description, e.min, e.max, constraints, integer=e.type is int)
-            engine_values[e.name] = self._declare(e.name, base[e.name], desc)
+            engine_values[e.name] = self._declare(e.name, base[e.name], parameter_descriptor(e))
         try:
             self.config = load_config(preset, engine_values)
         except ValueError as err:

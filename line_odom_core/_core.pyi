@@ -42,10 +42,7 @@ def estimate_motion(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, planes_a: np
     """Hybrid RANSAC over {7L, 3L1P, 1L2P} + robust refinement (paper 6.3). Row i of lines_a (N,6) is a candidate
     intersection with row i of lines_b; planes (M,4) likewise; segments (N,2,3) (7L; built from the lines when
     absent); weights (N,) >= 0; clusters (N,) int in {-1,0,1,2}; init (4,4) (None = identity).
-    options: solver ("auto", "7L", "3L1P", "1L2P"), max_iterations, min_iterations, confidence, inlier_threshold,
-    plane_angle_threshold_deg, plane_distance_threshold, refine_iterations, huber_delta, seed, min_inliers,
-    degeneracy_threshold, local_optimisation, pretest, min_inlier_contrast, solve_7l_method,
-    solve_7l_max_iterations.
+    options: by name, as estimate_motion_options() lists them (solver, max_iterations, inlier_threshold, seed, ...).
     Returns (T_ab (4,4), stats); T_ab = init when stats["success"] is False. stats keys: success, inliers,
     inlier_weight, plane_inliers, iterations, models, solver_counts (new-best hypotheses per solver),
     solver_iterations (samples per solver), best_solver (str | None), covariance (6,6; x y z rx ry rz; left
@@ -75,9 +72,9 @@ def organize_depth(depth: npt.ArrayLike, K: npt.ArrayLike, min_depth: float = 0.
 # {"h_lines"/"v_lines": {segments (N,2,3), plucker (N,6), normals (N,3), cluster, rms, support, scan_index,
 #  first, last, normal_support, plane}, "planes": {planes (P,4) [n, delta], centroids (P,3), rms, support},
 #  "cluster_directions" (3,3), "stats": {...}}
-def extract_features(range_image: npt.ArrayLike, config: dict[str, float | int | bool] | None = None,
-                     preset: str = "kitti", *, threads: int = 1) -> dict[str, Any]: ...
-def feature_config(preset: str = "kitti") -> dict[str, float]: ...
+def extract_features(range_image: npt.ArrayLike, config: dict[str, float | int | bool] | None = None, *,
+                     threads: int = 1) -> dict[str, Any]: ...  # config over the defaults; presets: line_odom_core's
+def feature_config() -> dict[str, float | int | bool]: ...  # lines.*, normals.*, planes.* with their defaults
 def sensor_presets() -> list[str]: ...
 
 # ---- odometry pipeline ----
@@ -178,3 +175,11 @@ def _motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequenc
                         dt: Sequence[float] | None = None
                         ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each motion (test hook)
 def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...
+
+# ---- settings (odometry/engine_settings.cpp) ----
+
+# One dict per setting: name, type ("bool", "int", "float", "str"), default, min, max (None: unbounded), min_open,
+# max_open, zero_is_off, choices, unit, description, runtime, expected (what it accepts, as its errors say it).
+def settings_schema() -> list[dict[str, Any]]: ...
+def estimate_motion_options() -> list[dict[str, Any]]: ...
+def check_setting(name: str, value: bool | int | float | str) -> bool | int | float | str: ...

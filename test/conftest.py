@@ -22,6 +22,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_engine_ros_free.py": ("unit",),
     "test_fuzz_convert.py": ("unit",),
     "test_node_launch_files.py": ("unit",),
+    "test_settings_table.py": ("unit",),
     "test_static_tf.py": ("unit",),
     # the engine on synthetic inputs
     "test_estimate_motion.py": ("engine",),
@@ -66,6 +67,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_batch.py": ("data", "slow"),
     "test_node_hostile.py": ("ros", "slow"),
     "test_node_lifecycle.py": ("ros", "slow"),
+    "test_node_scan.py": ("ros", "data", "slow"),
     "test_readers.py": ("data", "slow"),
 }
 

@@ -309,6 +309,31 @@ def test_progress_counts_done_and_failed_with_an_eta():
 
 
 def test_the_node_does_not_import_the_engine():
-    code = "import sys, line_odom.node, line_odom.cli; sys.exit(any(m.split('.')[0] in ('dask', 'distributed') " \
-           "for m in sys.modules))"
+    code = "import sys, line_odom.node, line_odom.lifecycle_node, line_odom.cli, line_odom.replay; " \
+           "sys.exit(any(m.split('.')[0] in ('dask', 'distributed') for m in sys.modules))"
     assert subprocess.run([sys.executable, "-c", code], cwd=ROOT, timeout=120).returncode == 0
+
+
+def test_batch_without_dask_says_what_to_install_in_one_line(archive, tmp_path):
+    """Dask is an optional extra: where it is not installed, `batch` says what to install; nothing else needs it."""
+    root, _ = archive
+    hide = ("import sys; sys.modules['dask'] = sys.modules['distributed'] = None; "  # as if not installed
+            "from line_odom.cli import main; sys.exit(main(sys.argv[1:]))")
+    done = subprocess.run([sys.executable, "-c", hide, "batch", str(root), "--out", str(tmp_path / "out"), "--quiet"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1 and done.stderr.strip() == f"line_odom batch: error: {batch.DEPENDENCY_HINT}", \
+        done.stderr
+    assert "pip install dask distributed" in batch.DEPENDENCY_HINT
+
+
+def test_benchmark_prints_one_and_two_workers_and_the_speed_up(capsys):
+    """bench/batch.py: the wall time of the same archive on 1 and 2 local workers, the speed-up, and that the two runs
+    gave the same trajectories."""
+    assert bench_batch.main(["--kitti-frames", "2", "--tum-frames", "2"]) == 0
+    out = capsys.readouterr().out
+    walls = {int(w): float(s) for w, s in re.findall(r"^workers (\d): wall +([0-9.]+) s +\(5 replayed, 1 failed",
+                                                        out, flags=re.MULTILINE)}
+    assert sorted(walls) == [1, 2] and all(s > 0 for s in walls.values()), out
+    speed_up = float(re.search(r"^speed-up 2 vs 1 workers: ([0-9.]+)x$", out, flags=re.MULTILINE).group(1))
+    assert speed_up == pytest.approx(walls[1] / walls[2], abs=0.01)
+    assert "trajectories identical between 1 and 2 workers: True" in out

@@ -147,10 +147,12 @@ def test_engine_rejects_what_the_schema_rejects():
 
 
 @pytest.mark.parametrize("preset", ["kitti_hdl64", "vlp16", "ouster_os128", "tum_kinect"])
-def test_every_node_parameter_is_spelled_out_in_every_preset(preset):
-    """The presets are where users read the node's parameters: each one is in each file (a key that slipped into a
-    comment, or was never added, would silently take its default)."""
-    from line_odom.processor import NODE_PARAMETERS
+def test_every_node_parameter_of_a_preset_takes_the_table_default_unless_set(preset):
+    """A preset holds only what differs from the defaults (test_settings_table.py): the node's parameters it does not
+    set are the table's defaults."""
+    from line_odom.node_parameters import NODE_PARAMETERS, settings_from_parameters
 
     extra = line_odom_core.load_config(preset).extra
-    assert [p.name for p in NODE_PARAMETERS if p.name not in extra] == []
+    settings = settings_from_parameters(preset)[1]
+    for p in NODE_PARAMETERS:
+        assert getattr(settings, p.attribute) == extra.get(p.name, p.default), p.name

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from line_odom.datasets import kitti_sequence, tum_sequence
+import line_odom_core
 from line_odom_core import _core
 
 # --------------------------------------------------------------------------------------------------
@@ -168,7 +169,7 @@ def test_config_overrides_and_errors():
     for name in ("lines.min_points_h", "lines.min_points_v", "lines.max_rms", "lines.split_distance",
                  "normals.max_deviation_deg", "planes.min_points", "planes.max_distance"):
         assert name in fields
-    assert _core.feature_config("tum")["lines.threshold_per_m2"] > 0
+    assert line_odom_core.feature_config("tum")["lines.threshold_per_m2"] > 0
     xyz = synthetic_scan()
     no_h = _core.extract_features(xyz, {"lines.min_points_h": 100000})
     assert len(no_h["h_lines"]["rms"]) == 0 and len(no_h["v_lines"]["rms"]) > 0
@@ -183,7 +184,7 @@ def test_config_overrides_and_errors():
     with pytest.raises(ValueError, match="range_image"):
         _core.extract_features(xyz[..., :2])
     with pytest.raises(ValueError, match="preset"):
-        _core.extract_features(xyz, preset="velodyne")
+        line_odom_core.extract_features(xyz, preset="velodyne")
 
 
 def test_deterministic():
@@ -206,7 +207,7 @@ def kitti_features(seq: str, frame: int = 0, step: int = 1):
 def line_residuals(xyz: np.ndarray, f, preset: str = "kitti") -> tuple[list[np.ndarray], np.ndarray]:
     """Distances of the range-image points each line covers (its scan line, first..last) to the line, and each
     line's threshold scale 1 + a r + b r^2 at its mid-point range (the fit thresholds grow with range)."""
-    cfg = _core.feature_config(preset)
+    cfg = line_odom_core.feature_config(preset)
     out, scale = [], []
     for name, L in all_lines(f):
         for i in range(len(L["rms"])):
@@ -223,7 +224,7 @@ def line_residuals(xyz: np.ndarray, f, preset: str = "kitti") -> tuple[list[np.n
 def assert_lines_fit_their_points(xyz, f, preset="kitti", fraction=0.99):
     """Per line, the median distance of the covered points is within max_rms (at the line's range) for nearly
     every line, and nearly all covered points are within the split threshold (stray skipped points aside)."""
-    cfg = _core.feature_config(preset)
+    cfg = line_odom_core.feature_config(preset)
     res, scale = line_residuals(xyz, f, preset)
     med = np.array([np.median(r) for r in res])
     assert np.mean(med <= cfg["lines.max_rms"] * scale) >= fraction, np.mean(med <= cfg["lines.max_rms"] * scale)
@@ -280,7 +281,7 @@ def test_tum_depth_lines_lie_on_the_points(step):
     third = 0
     for i in frames:
         ri = _core.organize_depth(tum.depth(i), tum.K, downsample=step)
-        f = _core.extract_features(ri["points"], preset="tum")
+        f = line_odom_core.extract_features(ri["points"], preset="tum")
         assert_finite(f)
         # Kinect depth is quantized (~1.3 cm steps at 2 m): thresholds grow with depth squared
         med = assert_lines_fit_their_points(ri["points"], f, preset="tum", fraction=0.98)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.srv import GetParameters, SetParameters
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import Trigger
 
@@ -54,6 +54,9 @@ def test_oversized_and_contradicting_depth_images_are_refused_before_conversion(
     pub_info.publish(info)
     publish_and_wait(h, node, pub_img, convert.depth_to_image(seq.depth(0), stamp=stamp), stamp)
 
+    # an image over max_pixels with its own (matching) CameraInfo: refused from its size alone
+    pub_info.publish(convert.camera_info_from_K(seq.K, 3000, 3000))
+    time.sleep(0.5)
     big = convert.depth_to_image(np.full((3000, 3000), 2.0), stamp=stamp + 1.0)  # 9 Mpixel, 18 MB: over 4 Mpixel
     send_until_counted(h, node, pub_img, big, "frames_too_large", 1)
     rss0 = rss_mb(node.proc.pid)
@@ -65,6 +68,8 @@ def test_oversized_and_contradicting_depth_images_are_refused_before_conversion(
     grown = rss_mb(node.proc.pid) - rss0
     assert grown < RSS_MARGIN_MB, f"RSS grew {grown:.0f} MB over ten refused images"
 
+    pub_info.publish(info)  # the depth camera's own again
+    time.sleep(0.5)
     wrong_size = convert.depth_to_image(np.full((960, 1280), 2.0), stamp=stamp + 20.0)  # 640 x 480 CameraInfo
     send_until_counted(h, node, pub_img, wrong_size, "frames_malformed", 1)
     stamp1 = float(seq.stamps[1])
@@ -87,13 +92,28 @@ def test_parameters_are_read_only_and_diagnostics_go_on_under_sim_time(run_node)
     """use_sim_time with no /clock: the diagnostics keep coming (a steady timer); every parameter, use_sim_time
     included, is refused at runtime naming it, and an undeclared one is refused naming it."""
     node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "use_sim_time": True, "diagnostics.period": 0.2})
+    from rcl_interfaces.srv import ListParameters
+
+    # every client before the first call: the node discovers them while the diagnostics are awaited (a response to a
+    # client it has not discovered yet is dropped)
     client = h.node.create_client(SetParameters, node.topic("line_odom/set_parameters"))
+    lister = h.node.create_client(ListParameters, node.topic("line_odom/list_parameters"))
+    getter = h.node.create_client(GetParameters, node.topic("line_odom/get_parameters"))
     wait_diagnostics(h, node, lambda v: True, "diagnostics under sim time without /clock")
     for name, value in (("use_sim_time", ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=False)),
                         ("downsample", ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=3)),
                         ("base_frame", ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="x"))):
         result = _set(h, node, client, name, value)
         assert not result.successful and name in result.reason, (name, result.reason)
+    # every parameter the node has, each set to its own value in one request: each refused, naming it
+    listed = call_service(h, node, lister, ListParameters.Request()).result.names
+    assert {"use_sim_time", "preset", "downsample", "max_pixels", "ransac.inlier_threshold"} <= set(listed)
+    values = call_service(h, node, getter, GetParameters.Request(names=listed)).values
+    request = SetParameters.Request(parameters=[ParameterMsg(name=n, value=v) for n, v in zip(listed, values)])
+    results = call_service(h, node, client, request).results
+    assert len(results) == len(listed) > 50
+    for name, result in zip(listed, results):  # (rclpy's own start_type_description_service: rclpy's wording)
+        assert not result.successful and name in result.reason and "read-only" in result.reason, (name, result.reason)
     result = _set(h, node, client, "no_such.parameter", ParameterValue(type=ParameterType.PARAMETER_INTEGER,
                                                                        integer_value=1))
     assert not result.successful and "'no_such.parameter'" in result.reason, result.reason
@@ -111,16 +131,30 @@ def _reset_burst(h, node, clients):
     assert all(f.result().success for f in futures)
 
 
+def _parameter_burst(h, node, clients):
+    futures = [c.call_async(GetParameters.Request(names=["downsample"])) for c in clients]
+    h.wait_for(lambda: all(f.done() for f in futures), 60, "all 20 get_parameters responses", node)
+    assert [f.result().values[0].integer_value for f in futures] == [6] * len(clients)
+
+
 def test_twenty_concurrent_reset_calls_are_all_answered_idle_and_while_frames_flow(run_node):
-    """~/reset: 20 callers at once all get their answer, idle and while frames flow."""
+    """~/reset: 20 callers at once (each with the default service QoS) all get their answer, idle and while frames
+    flow. The parameter services too, for callers whose response queue holds the burst: with Fast DDS every client of
+    a service receives every response and keeps its QoS depth of them (NODE.md, "Lifecycle")."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
     seq = kitti_sequence("07", 4)
     node, h = run_node({"preset": "kitti_hdl64", "downsample": 6, "diagnostics.period": 0.2})
     pub = h.publisher(PointCloud2, node.topic("points"))
     clients = [h.node.create_client(Trigger, node.topic("line_odom/reset")) for _ in range(20)]
+    burst_qos = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE)
+    getters = [h.node.create_client(GetParameters, node.topic("line_odom/get_parameters"), qos_profile=burst_qos)
+               for _ in range(20)]
     h.wait_matched(pub, node, STARTUP_S)
-    for c in clients:
+    for c in clients + getters:
         assert c.wait_for_service(timeout_sec=STARTUP_S)
     _reset_burst(h, node, clients)  # idle
+    _parameter_burst(h, node, getters)
     msgs = [kitti_unorganized(seq, i, 50.0 + 0.1 * i) for i in range(4)]
     flowing = {"run": True, "k": 0}
 
@@ -138,7 +172,9 @@ def test_twenty_concurrent_reset_calls_are_all_answered_idle_and_while_frames_fl
     try:
         h.wait_for(lambda: len(h.odom) >= 2, 60, "frames flowing", node)
         _reset_burst(h, node, clients)
+        _parameter_burst(h, node, getters)
         _reset_burst(h, node, clients)
+        _parameter_burst(h, node, getters)
     finally:
         flowing["run"] = False
         thread.join()

@@ -40,7 +40,7 @@ def test_launch_description_builds_where_launch_ros_exists():
     assert len(description.entities) > 2
 
 
-def test_rviz_config_shows_odometry_path_tf_in_odom_frame():
+def test_rviz_config_shows_odometry_path_scan_and_lines_in_odom_frame():
     doc = yaml.safe_load(RVIZ.read_text())
     manager = doc["Visualization Manager"]
     assert manager["Global Options"]["Fixed Frame"] == "odom"
@@ -53,6 +53,12 @@ def test_rviz_config_shows_odometry_path_tf_in_odom_frame():
     assert clouds["Input cloud"]["Reliability Policy"] == "Best Effort"
     assert clouds["Registered scan"]["Value"] == "/line_odom/scan"
     assert clouds["Registered scan"]["Reliability Policy"] == "Reliable"
+    lines = displays["rviz_default_plugins/MarkerArray"]
+    assert lines["Topic"]["Value"] == "/line_odom/lines" and lines["Topic"]["Reliability Policy"] == "Reliable"
+    assert lines["Namespaces"] == {"h_lines": True, "v_lines": True}  # the two markers the node sends
+    # "2D Pose Estimate" publishes where the node listens, in the fixed frame (odom_frame): accepted, not refused
+    tools = {t["Class"]: t for t in manager["Tools"]}
+    assert tools["rviz_default_plugins/SetInitialPose"]["Topic"]["Value"] == "/initialpose"
 
 
 def test_setup_installs_launch_rviz_and_dds_profile():

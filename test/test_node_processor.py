@@ -304,6 +304,35 @@ def test_repeated_rejections_are_counted_and_logged_once_per_reason_with_a_count
     assert len(messages) == 5 and "more like this" not in messages[4]
 
 
+@pytest.mark.parametrize("offsets, extra, field", [
+    ((0, 2, 8), None, "PointCloud2.fields[y].offset"),        # y inside x
+    ((0, 0, 0), None, "PointCloud2.fields[y].offset"),        # x = y = z
+    ((0, 4, 8), ("intensity", 10), "PointCloud2.point_step"),  # a float32 at 10 runs past the 12-byte point
+])
+def test_overlapping_fields_and_fields_past_point_step_are_refused_as_malformed(offsets, extra, field):
+    """Layouts a writer got wrong are not read as garbage and held: each cloud is counted malformed (the engine is
+    never called), the reason logged once naming the field, and the next good cloud is registered."""
+    from sensor_msgs.msg import PointField
+
+    messages = []
+    proc, engine = _processor([np.eye(4)] * 2)
+    proc._warn = messages.append
+    proc.log_limiter = type(proc.log_limiter)(messages.append)
+    for k in range(30):
+        bad = convert.pointcloud2_from_xyz(np.random.default_rng(k).normal(size=(50, 3)).astype(np.float32),
+                                           frame_id="lidar", stamp=1.0 + 0.1 * k)
+        bad.fields = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1)
+                      for n, o in zip("xyz", offsets)]
+        if extra is not None:
+            bad.fields.append(PointField(name=extra[0], offset=extra[1], datatype=PointField.FLOAT32, count=1))
+        assert bad.point_step == 12
+        assert proc.process_pointcloud(bad) is None
+    assert proc.counters["frames_malformed"] == 30 and proc.counters["frames_processed"] == 0
+    assert engine.k == 0  # the engine never saw one
+    assert len(messages) == 1 and field in messages[0] and "\n" not in messages[0], messages
+    assert proc.process_pointcloud(_cloud(10.0)) is not None and proc.counters["frames_processed"] == 1
+
+
 def test_oversized_depth_image_is_refused_before_conversion_and_memory_returns(monkeypatch):
     """An image over max_pixels, or contradicting its CameraInfo, is refused from its header: no conversion runs
     (checked by making it fail), each is counted and logged once naming the limit, and the process's RSS stays

@@ -82,6 +82,43 @@ def test_velodyne_pcap_every_rotation_with_ring_and_time(tmp_path):
     assert "ground_truth_tum.txt" not in {p.name for p in result.files}
 
 
+@pytest.mark.parametrize("path, method", [(VELODYNE_PCAP, "register_points"), (OS1_PCAP, "register_organized"),
+                                          (OSF, "register_organized")])
+def test_rings_and_point_times_reach_the_engine(tmp_path, monkeypatch, path, method):
+    """What replay hands the engine is the reader's own rings and times, and the engine deskews with them: a spy on
+    line_odom_core.Odometry sees, for each frame, the reader's ring (Velodyne; an Ouster scan is organized, its rows
+    are the beams) and time arrays in the call, and the engine's own stats say the sweep was corrected."""
+    import line_odom_core
+
+    frames = 4
+    with readers.open_source(path, frames=frames) as source:
+        read = list(source.frames())
+        beams = getattr(source, "beams", None)
+    calls = []
+    original = getattr(line_odom_core.Odometry, method)
+
+    def spy(self, xyz, stamp, **kwargs):
+        result = original(self, xyz, stamp, **kwargs)
+        calls.append((np.array(xyz), kwargs, dict(result.stats)))
+        return result
+
+    monkeypatch.setattr(line_odom_core.Odometry, method, spy)
+    replay(path, tmp_path / "out", frames=frames, progress=False)
+    assert len(calls) == len(read) >= 3
+    for (xyz, kwargs, stats), frame in zip(calls, read):
+        measured = np.isfinite(frame.xyz).all(axis=-1)  # a point without a return has no time that matters
+        # the message carries times as float32 (seconds from the stamp): equal to well under a microsecond
+        np.testing.assert_allclose(kwargs["time"][measured], frame.time[measured], rtol=0, atol=1e-7)
+        if method == "register_points":
+            np.testing.assert_array_equal(kwargs["ring"], frame.ring)
+            assert len(np.unique(kwargs["ring"])) == 32  # every beam of the sensor
+        else:
+            assert xyz.shape == frame.xyz.shape and xyz.shape[0] == beams  # organized: rows = beams
+        assert np.ptp(kwargs["time"][measured]) > 0.04  # one sweep (20 Hz Velodyne, 10 Hz Ouster)
+    # the first two frames have no velocity to deskew at; from the third on every sweep is corrected
+    assert [stats["deskewed"] for _, _, stats in calls[2:]] == [True] * (len(calls) - 2)
+
+
 def test_ouster_os1_128_pcap_within_its_reference_poses(tmp_path):
     out = tmp_path / "out"
     result = replay(OS1_PCAP, out, ground_truth=OS1_POSES, out_bag=tmp_path / "odom_bag",
@@ -375,12 +412,12 @@ def test_rosbag2_through_replay_path_with_plot_features(tmp_path):
 
 
 def _assert_features_png(path: Path) -> None:
-    """Both line colours are drawn: blue H-lines (matplotlib's C0) and red V-lines (C3), antialiased."""
+    """Both line colours are drawn, ~/lines' own: orange H-lines and blue V-lines, antialiased."""
     from PIL import Image
 
     r, g, b = np.asarray(Image.open(path).convert("RGB")).reshape(-1, 3).astype(int).T
     assert ((b > r + 60) & (b > g + 20)).sum() > 500  # blue
-    assert ((r > g + 60) & (r > b + 60)).sum() > 500  # red
+    assert ((r > g + 60) & (r > b + 60)).sum() > 500  # orange
 
 
 # ------------------------------------------------------------------------------------------------ errors
@@ -420,20 +457,47 @@ def test_errors_are_one_line(tmp_path, capsys):
     assert code == 1 and "rosbag2" in err and "--imu-topic" in err
 
 
-@pytest.mark.parametrize("path, overrides", [(VELODYNE_PCAP, {}), (OS1_PCAP, {}), (KITTI_07, {"downsample": 6})])
-def test_plot_features_draws_the_lines_the_engine_fits(path, overrides):
-    from line_odom.plot import scan_features
+@pytest.mark.parametrize("path, overrides, index", [(VELODYNE_PCAP, {}, 2), (OS1_PCAP, {}, 1),
+                                                   (KITTI_07, {"downsample": 6}, 1)])
+def test_plot_features_draws_the_scan_and_lines_the_node_sends_rviz(tmp_path, monkeypatch, path, overrides, index):
+    """features.png draws frame N's ~/scan points and ~/lines segments as the node's processing makes them: the same
+    arrays as the processor's own messages for that frame, the lines those the engine registered (last_lines)."""
+    from line_odom import plot
     from line_odom.processor import OdometryProcessor
     from line_odom.replay import frame_message, node_settings
 
-    with readers.open_source(path, frames=1) as source:
-        frame = next(source.frames())
+    drawn = {}
+    original = plot.plot_registered_view
+
+    def spy(png, scan, lines, **kwargs):
+        drawn.update(scan=scan, lines=lines, **kwargs)
+        return original(png, scan, lines, **kwargs)
+
+    monkeypatch.setattr(plot, "plot_registered_view", spy)
+    replay(path, tmp_path / "out", frames=index + 1, overrides=overrides, plot_features=index, progress=False)
+    _assert_features_png(tmp_path / "out" / "features.png")
+    assert drawn["depth"] is False
+    with readers.open_source(path, frames=index + 1) as source:
         config, settings = node_settings("pointcloud", source.sensor.preset, {**source.sensor.overrides, **overrides})
-    out = OdometryProcessor(config, settings).process_pointcloud(frame_message(frame, "sensor"))
-    _, features, _ = scan_features(frame, config)
-    for kind in ("h_lines", "v_lines"):
-        drawn, fitted = len(features[kind]["segments"]), out.stats[kind]
-        assert fitted > 50 and abs(drawn - fitted) <= 0.1 * fitted, (kind, drawn, fitted)
+        processor = OdometryProcessor(config, settings)
+        for i, frame in enumerate(source.frames()):
+            processor.scan_wanted = processor.lines_wanted = i == index
+            out = processor.process_pointcloud(frame_message(frame, source.frame_id))
+    h_lines, v_lines = processor.engine.last_lines()
+    ends = {m.ns: np.array([[p.x, p.y, p.z] for p in m.points]) for m in drawn["lines"].markers}
+    for kind, segments in (("h_lines", h_lines), ("v_lines", v_lines)):
+        assert len(segments) > 50 and len(segments) == out.stats[kind], kind
+        np.testing.assert_array_equal(ends[kind], segments.reshape(-1, 3))
+    from line_odom import convert
+
+    np.testing.assert_array_equal(convert.pointcloud2_to_arrays(drawn["scan"]).xyz,
+                                  convert.pointcloud2_to_arrays(out.scan).xyz)
+
+
+def test_plot_features_of_a_frame_past_the_end_is_one_line(tmp_path, capsys):
+    code = cli.main(["replay", str(OS2_PCAP), "--out", str(tmp_path / "o"), "--plot-features", "3", "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err == "line_odom replay: error: --plot-features 3: the recording has 1 frame(s) (0 .. 0)"
 
 
 def test_rosbag2_of_another_lidar_gets_the_preset_its_clouds_suggest(tmp_path):

@@ -441,8 +441,11 @@ def test_realtime_replay_of_an_ouster_pcap(tmp_path, ros_env):
     args = [str(rec / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap"), "--ground-truth",
             str(rec / "OS-1-128_v2.3.0_1024x10_lb_n3_poses_kitti.txt"), "--quiet"]
     assert main(["replay", *args, "--out", str(tmp_path / "in")]) == 0
-    run = _replay_process([*args, "--out", str(tmp_path / "rt"), "--realtime", "--rate", "0.5"], ros_env)
+    run = _replay_process([*args, "--out", str(tmp_path / "rt"), "--realtime", "--rate", "0.5", "--plot-features", "1"],
+                          ros_env)
     assert run.returncode == 0, run.stdout
+    # the node ran in its own process: features.png from the same frames through its processing core here
+    assert (tmp_path / "rt" / "features.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     offline, live = _metrics(tmp_path / "in"), _metrics(tmp_path / "rt")
     assert live["input"]["format"] == "ouster" and live["input"]["preset"] == "ouster_os128"
     assert live["frames"] == 3 and live["frames_with_ground_truth"] == 3, live

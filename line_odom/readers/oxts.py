@@ -1,6 +1,10 @@
 """KITTI raw OXTS GPS/INS records as poses, the way the KITTI raw devkit's convertOxtsToPose defines them: a Mercator
 projection scaled at the first record's latitude, R = Rz(yaw) Ry(pitch) Rx(roll), every pose relative to the first;
-and the same poses for the Velodyne through calib_imu_to_velo.txt."""
+and the same poses for the Velodyne through calib_imu_to_velo.txt.
+
+Written here after the devkit's MATLAB (a text record of 30 numbers and a dozen lines of math) rather than taken from
+pykitti, the Python port on PyPI: its last release predates NumPy 2, and this module is tested against known answers
+(test/test_readers.py)."""
 from __future__ import annotations
 
 import datetime

@@ -11,8 +11,10 @@
 #include <vector>
 
 #include "bindings/module.hpp"
+#include "bindings/settings.hpp"
 #include "common/worker_pool.hpp"
 #include "features/feature_extraction.hpp"
+#include "odometry/engine_settings.hpp"
 #include "scan/range_image.hpp"
 
 namespace py = pybind11;
@@ -118,23 +120,10 @@ py::dict organize_depth_py(const py::array& depth, const Eigen::Matrix3d& K, dou
   return range_image_dict(img, stats);
 }
 
-FeatureConfig config_from(const py::object& config, const std::string& preset) {
-  FeatureConfig cfg = FeatureConfig::preset(preset);
-  if (!config.is_none()) {
-    if (!py::isinstance<py::dict>(config)) throw py::value_error("config: expected a dict of dotted names");
-    for (auto item : config.cast<py::dict>()) {
-      const std::string key = py::str(item.first);
-      double value;
-      try {
-        value = item.second.cast<double>();
-      } catch (const py::cast_error&) {
-        throw py::value_error(key + ": expected a number or bool");
-      }
-      set_feature_config_field(&cfg, key, value);
-    }
-  }
-  cfg.validate();
-  return cfg;
+FeatureConfig config_from(const py::object& config) {
+  if (config.is_none()) return FeatureConfig{};
+  if (!py::isinstance<py::dict>(config)) throw py::value_error("config: expected a dict of dotted names");
+  return py_settings::from_dict(feature_settings(), config.cast<py::dict>());
 }
 
 py::dict lines_dict(const std::vector<LineFeature>& lines) {
@@ -178,14 +167,13 @@ py::dict lines_dict(const std::vector<LineFeature>& lines) {
   return d;
 }
 
-py::dict extract_features_py(const py::array& xyz, const py::object& config, const std::string& preset,
-                             int threads) {
+py::dict extract_features_py(const py::array& xyz, const py::object& config, int threads) {
   if (threads < 1) throw py::value_error("threads: expected >= 1, got " + std::to_string(threads));
   if (xyz.ndim() != 3 || xyz.shape(2) != 3)
     throw py::value_error("range_image: expected an (H, W, 3) organized cloud (NaN or zero = hole)");
   auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(xyz);
   if (!a) throw py::value_error("range_image: expected a numeric array");
-  const FeatureConfig cfg = config_from(config, preset);
+  const FeatureConfig cfg = config_from(config);
   const int rows = static_cast<int>(a.shape(0)), cols = static_cast<int>(a.shape(1));
   ScanFeatures features;
   FeatureStats stats;
@@ -236,12 +224,6 @@ py::dict extract_features_py(const py::array& xyz, const py::object& config, con
   return d;
 }
 
-py::dict feature_config_py(const std::string& preset) {
-  py::dict d;
-  for (const auto& [name, value] : feature_config_fields(FeatureConfig::preset(preset))) d[py::str(name)] = value;
-  return d;
-}
-
 }  // namespace feature_bindings
 
 void line_odom_bindings::register_features(py::module_& m) {
@@ -257,11 +239,12 @@ void line_odom_bindings::register_features(py::module_& m) {
         "Depth image (H, W) in metres back-projected with K -> range image dict (camera optical frame). "
         "downsample_while_organizing: back-project only the kept pixels (same image; stats count them).");
   m.def("extract_features", &feature_bindings::extract_features_py, py::arg("range_image"),
-        py::arg("config") = py::none(), py::arg("preset") = "kitti", py::kw_only(), py::arg("threads") = 1,
+        py::arg("config") = py::none(), py::kw_only(), py::arg("threads") = 1,
         "Organized cloud (H, W, 3) (NaN/zero = hole) -> dict of H/V lines, planes, cluster directions, stats. "
-        "`config` overrides preset fields by dotted name (see feature_config); `threads`: the line fit's (the same "
-        "features).");
-  m.def("feature_config", &feature_bindings::feature_config_py, py::arg("preset") = "kitti",
-        "Feature parameters of a preset by dotted name.");
+        "`config`: feature settings by dotted name over the defaults (see feature_config); `threads`: the line "
+        "fit's (the same features).");
+  m.def("feature_config",
+        []() { return py_settings::to_dict(line_odom::feature_settings(), line_odom::FeatureConfig{}); },
+        "The feature settings (lines.*, normals.*, planes.*) by dotted name, with their defaults.");
   m.def("sensor_presets", &line_odom::sensor_preset_names, "Names accepted by organize_points(sensor=...).");
 }

@@ -9,33 +9,18 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
-#include <variant>
 #include <vector>
 
 #include "bindings/module.hpp"
+#include "bindings/settings.hpp"
 #include "bindings/types.hpp"
+#include "odometry/engine_settings.hpp"
 #include "odometry/odometry.hpp"
 #include "scan/sensor_fit.hpp"
 
 namespace py = pybind11;
 
 namespace odometry_bindings {
-
-line_odom::SettingValue to_setting(const std::string& name, const py::handle& value) {
-  if (py::isinstance<py::bool_>(value)) return value.cast<bool>();
-  if (py::isinstance<py::int_>(value)) return value.cast<std::int64_t>();
-  if (py::isinstance<py::float_>(value)) return value.cast<double>();
-  if (py::isinstance<py::str>(value)) return value.cast<std::string>();
-  throw py::value_error(name + ": expected a bool, int, float or str, got " +
-                        std::string(py::str(py::type::of(value).attr("__name__"))));
-}
-
-py::dict settings_dict(const line_odom::OdometryConfig& config) {
-  py::dict d;
-  for (const auto& [name, value] : line_odom::config_settings(config))
-    d[py::str(name)] = std::visit([](const auto& x) -> py::object { return py::cast(x); }, value);
-  return d;
-}
 
 py::dict stats_dict(const line_odom::FrameStats& s) {
   py::dict ms;
@@ -128,12 +113,7 @@ const std::int32_t* ring_pointer(const std::optional<py::array_t<std::int32_t>>&
 }
 
 std::unique_ptr<line_odom::Odometry> make_odometry(const py::dict& settings) {
-  line_odom::OdometryConfig config;
-  for (const auto& item : settings) {
-    const std::string name = py::str(item.first);
-    const std::string error = line_odom::apply_setting(&config, name, to_setting(name, item.second));
-    if (!error.empty()) throw py::value_error(name + ": " + error);
-  }
+  const line_odom::OdometryConfig config = py_settings::from_dict(line_odom::odometry_settings(), settings);
   try {
     return std::make_unique<line_odom::Odometry>(config);
   } catch (const std::invalid_argument& e) {
@@ -331,7 +311,7 @@ void line_odom_bindings::register_odometry(py::module_& m) {
           },
           "The H-lines and V-lines the last scan was registered with, as segments (n, 2, 3) in its sensor frame "
           "(deskewed, as registered).")
-      .def("settings", [](const Odometry& o) { return ob::settings_dict(o.config()); });
+      .def("settings", [](const Odometry& o) { return py_settings::to_dict(line_odom::odometry_settings(), o.config()); });
   m.def("reads_in_place", [](const py::array& xyz) { return ob::in_place_stride(xyz) > 0; }, py::arg("xyz"),
         "Whether register_points / register_organized read these points without a copy.");
   // Per-frame rotation conversions of the Python side (result twist, ROS messages): Eigen's, because scipy's
@@ -371,6 +351,20 @@ void line_odom_bindings::register_odometry(py::module_& m) {
         "Test hook: MotionPersistence (motion_persistence.hpp) fed the motions (N, 6) (x y z rx ry rz) of frames in "
         "order over their stamp intervals dt (default 1 s; registered[i] False: a frame without a registration); the "
         "per-axis factors after each (N, 6).");
-  m.def("odometry_config_defaults", []() { return ob::settings_dict(line_odom::OdometryConfig{}); },
-        "Every dotted engine setting the C++ side knows, with its default.");
+  m.def("odometry_config_defaults",
+        []() { return py_settings::to_dict(line_odom::odometry_settings(), line_odom::OdometryConfig{}); },
+        "Every dotted engine setting with its default.");
+  m.def("settings_schema", []() { return py_settings::schema_list(line_odom::odometry_settings().schema()); },
+        "The engine settings' schema (odometry/engine_settings.cpp): one dict per setting with its name, type, "
+        "default, range or choices, unit, description and whether a running node may change it.");
+  m.def(
+      "check_setting",
+      [](const py::str& name, const py::handle& value) {
+        line_odom::OdometryConfig config;
+        py_settings::apply(line_odom::odometry_settings(), &config, name, value);
+        return py_settings::to_python(line_odom::odometry_settings().row(name).get(config));
+      },
+      py::arg("name"), py::arg("value"),
+      "The value as the engine setting `name` takes it (an int for a float setting becomes a float, a choice its "
+      "spelling in the schema); ValueError naming the setting and what it accepts otherwise.");
 }

@@ -8,13 +8,14 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
-#include <limits>
 #include <string>
 #include <vector>
 
 #include "bindings/module.hpp"
+#include "bindings/settings.hpp"
 #include "bindings/ransac_examples.hpp"
 #include "bindings/types.hpp"
+#include "odometry/engine_settings.hpp"
 #include "registration/motion_estimation.hpp"
 
 namespace py = pybind11;
@@ -44,110 +45,6 @@ py::array_t<double, py::array::c_style> rows(const char* name, py::handle obj, p
   if (n == 0 && arr && arr.size() == 0 && arr.ndim() == 1) return py::array_t<double, py::array::c_style>();
   tail.insert(tail.begin(), n);
   return py_types::as_float_array("estimate_motion", name, obj, tail);
-}
-
-[[noreturn]] void bad_option(const std::string& key, const std::string& expected, py::handle value) {
-  throw py::value_error("estimate_motion: option '" + key + "' must be " + expected + ", got " +
-                        std::string(py::repr(value)));
-}
-
-bool is_bool(py::handle v) {
-  const std::string type = py::str(py::type::of(v).attr("__name__"));
-  return py::isinstance<py::bool_>(v) || type == "bool_";
-}
-
-long long option_int(const std::string& key, py::handle v, long long min) {
-  if (is_bool(v) || !PyIndex_Check(v.ptr())) bad_option(key, "an integer >= " + std::to_string(min), v);
-  const long long x = py::int_(py::reinterpret_borrow<py::object>(v)).cast<long long>();
-  if (x < min || x > std::numeric_limits<int>::max()) bad_option(key, "an integer >= " + std::to_string(min), v);
-  return x;
-}
-
-double option_float(const std::string& key, py::handle v, double lo, double hi, bool lo_open, const char* text) {
-  if (is_bool(v) || py::isinstance<py::str>(v) || !(PyIndex_Check(v.ptr()) || PyFloat_Check(v.ptr()) ||
-                                                      py::hasattr(v, "__float__")))
-    bad_option(key, text, v);
-  const double x = py::float_(py::reinterpret_borrow<py::object>(v)).cast<double>();
-  if (!std::isfinite(x) || x > hi || x < lo || (lo_open && x == lo)) bad_option(key, text, v);
-  return x;
-}
-
-bool option_bool(const std::string& key, py::handle v) {
-  if (!is_bool(v)) bad_option(key, "True or False", v);
-  return py::bool_(py::reinterpret_borrow<py::object>(v)).cast<bool>();
-}
-
-std::string option_str(const std::string& key, py::handle v, const std::string& expected) {
-  if (!py::isinstance<py::str>(v)) bad_option(key, expected, v);
-  return v.cast<std::string>();
-}
-
-line_odom::MotionOptions motion_options(const py::dict& d) {
-  line_odom::MotionOptions o;
-  for (auto item : d) {
-    if (!py::isinstance<py::str>(item.first))
-      throw py::value_error("estimate_motion: option names must be strings, got " +
-                            std::string(py::repr(item.first)));
-    const std::string key = item.first.cast<std::string>();
-    const py::handle v = item.second;
-    if (key == "solver") {
-      const char* expected = "one of 'auto', '7L', '3L1P', '1L2P'";
-      const std::string s = option_str(key, v, expected);
-      if (s == "auto") o.solver = line_odom::SolverMode::kAuto;
-      else if (s == "7L") o.solver = line_odom::SolverMode::k7L;
-      else if (s == "3L1P") o.solver = line_odom::SolverMode::k3L1P;
-      else if (s == "1L2P") o.solver = line_odom::SolverMode::k1L2P;
-      else bad_option(key, expected, v);
-    } else if (key == "max_iterations") {
-      o.max_iterations = static_cast<int>(option_int(key, v, 0));
-    } else if (key == "min_iterations") {
-      o.min_iterations = static_cast<int>(option_int(key, v, 0));
-    } else if (key == "confidence") {
-      o.confidence = option_float(key, v, 0.0, 1.0, false, "a number in [0, 1]");
-    } else if (key == "inlier_threshold") {
-      o.inlier_threshold = option_float(key, v, 0.0, 1e9, true, "a number > 0 (metres)");
-    } else if (key == "plane_angle_threshold_deg") {
-      o.plane_angle_threshold_deg = option_float(key, v, 0.0, 180.0, true, "a number in (0, 180] (degrees)");
-    } else if (key == "plane_distance_threshold") {
-      o.plane_distance_threshold = option_float(key, v, 0.0, 1e9, true, "a number > 0 (metres)");
-    } else if (key == "refine_iterations") {
-      o.refine_iterations = static_cast<int>(option_int(key, v, 0));
-    } else if (key == "huber_delta") {
-      o.huber_delta = option_float(key, v, 0.0, 1e9, false, "a number >= 0 (metres; 0 = inlier_threshold)");
-    } else if (key == "seed") {
-      if (is_bool(v) || !PyIndex_Check(v.ptr())) bad_option(key, "an integer in [0, 2^64)", v);
-      const py::int_ i(py::reinterpret_borrow<py::object>(v));
-      if (i < py::int_(0) || i > py::int_(std::numeric_limits<std::uint64_t>::max()))
-        bad_option(key, "an integer in [0, 2^64)", v);
-      o.seed = i.cast<std::uint64_t>();
-    } else if (key == "min_inliers") {
-      o.min_inliers = static_cast<int>(option_int(key, v, 0));
-    } else if (key == "degeneracy_threshold") {
-      o.degeneracy_threshold = option_float(key, v, 0.0, 1.0, false, "a number in [0, 1]");
-    } else if (key == "local_optimisation") {
-      o.local_optimisation = option_bool(key, v);
-    } else if (key == "pretest") {
-      o.pretest = option_bool(key, v);
-    } else if (key == "min_inlier_contrast") {
-      o.min_inlier_contrast = option_float(key, v, 0.0, 1e9, false, "a number >= 0");
-    } else if (key == "solve_7l_method") {
-      const char* expected = "'gauss_newton' or 'alternating_projection'";
-      const std::string s = option_str(key, v, expected);
-      if (s == "gauss_newton") o.solve_7l_method = line_odom::Solve7LMethod::kGaussNewton;
-      else if (s == "alternating_projection") o.solve_7l_method = line_odom::Solve7LMethod::kAlternatingProjection;
-      else bad_option(key, expected, v);
-    } else if (key == "solve_7l_max_iterations") {
-      o.solve_7l_max_iterations = static_cast<int>(option_int(key, v, 0));
-    } else {
-      throw py::value_error("estimate_motion: unknown option '" + key +
-                            "' (known: solver, max_iterations, min_iterations, confidence, inlier_threshold, "
-                            "plane_angle_threshold_deg, plane_distance_threshold, refine_iterations, huber_delta, "
-                            "seed, min_inliers, degeneracy_threshold, local_optimisation, pretest, min_inlier_contrast, "
-                            "solve_7l_method, "
-                            "solve_7l_max_iterations)");
-    }
-  }
-  return o;
 }
 
 const char* solver_name(int s) {
@@ -220,7 +117,8 @@ py::tuple estimate_motion(py::handle lines_a, py::handle lines_b, py::handle pla
   }
   const line_odom::RigidTransform init_ =
       init.is_none() ? line_odom::RigidTransform::identity() : py_types::pose_from("estimate_motion", "init", init);
-  const line_odom::MotionOptions options_ = motion_options(options);
+  const line_odom::MotionOptions options_ =
+      py_settings::from_dict(line_odom::motion_settings(), options, "estimate_motion: ");
 
   line_odom::RigidTransform T;
   line_odom::MotionStats stats;
@@ -338,7 +236,10 @@ void line_odom_bindings::register_registration(py::module_& m) {
         py::arg("init") = py::none(), py::arg("options") = py::dict(),
         "Hybrid RANSAC over {7L, 3L1P, 1L2P} on candidate line intersections (row i of lines_a (N,6) with row i\n"
         "of lines_b) and plane pairs (M,4), then robust refinement on all inliers (paper 6.3).\n"
-        "Returns (T_ab (4,4), stats dict); T_ab = init (identity) with stats['success'] False when nothing is found.");
+        "Returns (T_ab (4,4), stats dict); T_ab = init (identity) with stats['success'] False when nothing is found.\n"
+        "options: see estimate_motion_options().");
+  m.def("estimate_motion_options", []() { return py_settings::schema_list(line_odom::motion_settings().schema()); },
+        "The schema of estimate_motion's options (odometry/engine_settings.cpp), as settings_schema().");
   m.def("_ransac_fit_line_2d", &motion_bindings::fit_line_2d, py::arg("points"), py::arg("threshold"),
         py::kw_only(), py::arg("weights") = py::none(), py::arg("max_iterations") = 1000,
         py::arg("min_iterations") = 0, py::arg("confidence") = 0.999, py::arg("seed") = 0,

@@ -1,11 +1,7 @@
 // Scan features in one call (paper §6.2): H/V lines, their normals and 3 normal clusters, planes.
-// FeatureConfig holds every threshold; its fields map to the dotted parameter names given beside them
-// (lines.*, normals.*, planes.*). Presets: kitti() for the HDL-64E, tum() for the Kinect depth camera.
+// FeatureConfig holds every threshold: the settings lines.*, normals.*, planes.* (odometry/engine_settings.cpp, which
+// also checks them); the sensor presets in config/*.yaml set what differs from the defaults.
 #pragma once
-
-#include <string>
-#include <utility>
-#include <vector>
 
 #include "common/scan_features.hpp"
 #include "features/line_fit.hpp"
@@ -18,11 +14,6 @@ struct FeatureConfig {
   LineFitConfig lines;
   NormalConfig normals;
   PlaneFitConfig planes;
-
-  static FeatureConfig kitti();  // HDL-64E: ~2 cm range noise, thresholds growing ~linearly with range
-  static FeatureConfig tum();    // Kinect: depth noise and quantization growing ~quadratically with depth
-  static FeatureConfig preset(const std::string& name);  // "kitti" / "kitti_hdl64" / "hdl64", "tum" / "tum_kinect"
-  void validate() const;
 };
 
 struct FeatureStats {
@@ -39,13 +30,6 @@ struct FeatureStats {
   double normals_ms = 0.0;  // crossings, normals and clustering
   double planes_ms = 0.0;
 };
-
-// Every config field by its dotted name ("lines.min_points_h", ...) with its value as a double
-// (ints and bools included), in declaration order.
-std::vector<std::pair<std::string, double>> feature_config_fields(const FeatureConfig& config);
-// Sets one field by dotted name; throws std::invalid_argument for an unknown name or a value that is not
-// representable (non-integer for an int field, not 0/1 for a bool). Call validate() after the last one.
-void set_feature_config_field(FeatureConfig* config, const std::string& name, double value);
 
 // Lines fitted on every scan_step-th row and column; past max_lines (0: no budget) only those of every s-th row and
 // column are kept for normals, planes and the result (line_selection.hpp).

@@ -873,23 +873,6 @@ LINE_ODOM_VECTOR_CLONES_FLATTEN void fit_pass(
 
 }  // namespace
 
-void LineFitConfig::validate() const {
-  auto fail = [](const std::string& field, const std::string& what) {
-    throw std::invalid_argument("lines." + field + ": " + what);
-  };
-  if (min_points_h < 2) fail("min_points_h", "expected >= 2");
-  if (min_points_v < 2) fail("min_points_v", "expected >= 2");
-  if (!(min_length >= 0.0)) fail("min_length", "expected >= 0");
-  if (!(split_distance > 0.0)) fail("split_distance", "expected > 0");
-  if (!(max_rms > 0.0)) fail("max_rms", "expected > 0");
-  if (!(threshold_per_m >= 0.0)) fail("threshold_per_m", "expected >= 0");
-  if (!(threshold_per_m2 >= 0.0)) fail("threshold_per_m2", "expected >= 0");
-  if (max_gap < 0) fail("max_gap", "expected >= 0");
-  if (!(min_incidence_deg >= 0.0 && min_incidence_deg < 90.0)) fail("min_incidence_deg", "expected in [0, 90)");
-  if (max_outliers < 0) fail("max_outliers", "expected >= 0");
-  if (!(trim_sigmas > 0.0)) fail("trim_sigmas", "expected > 0");
-}
-
 Mat3 PointMoments::covariance() const {
   if (count == 0) return Mat3::Zero();
   const Vec3 c = mean();
@@ -1066,7 +1049,6 @@ void gather_block(const RangeImage& image, const ScanBlock& block, std::vector<L
 }  // namespace
 
 ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config, int scan_step, WorkerPool* pool) {
-  config.validate();
   if (scan_step < 1) throw std::invalid_argument("scan_step: expected >= 1");
   const size_t cells = static_cast<size_t>(image.rows) * image.cols;
   if (image.rows < 0 || image.cols < 0 || image.points.size() != cells || image.valid.size() != cells)

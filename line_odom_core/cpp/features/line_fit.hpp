@@ -37,7 +37,6 @@ struct LineFitConfig {
   double threshold_scale(double range) const {
     return 1.0 + threshold_per_m * range + threshold_per_m2 * range * range;
   }
-  void validate() const;  // throws std::invalid_argument naming the field
 };
 
 // Lines of one range image with, per cell, the index of the H-line / V-line holding that point (-1 none).

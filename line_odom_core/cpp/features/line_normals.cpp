@@ -168,23 +168,6 @@ Vec3 canonical_sign(const Vec3& v) {
 
 }  // namespace
 
-void NormalConfig::validate() const {
-  auto fail = [](const std::string& field, const std::string& what) {
-    throw std::invalid_argument("normals." + field + ": " + what);
-  };
-  if (!(min_crossing_angle_deg >= 0.0 && min_crossing_angle_deg < 90.0))
-    fail("min_crossing_angle_deg", "expected in [0, 90)");
-  if (!(max_deviation_deg > 0.0 && max_deviation_deg <= 90.0)) fail("max_deviation_deg", "expected in (0, 90]");
-  if (min_crossings < 1) fail("min_crossings", "expected >= 1");
-  if (!(min_agreement >= 0.0 && min_agreement <= 1.0)) fail("min_agreement", "expected in [0, 1]");
-  if (!(vote_angle_deg > 0.0 && vote_angle_deg < 90.0)) fail("vote_angle_deg", "expected in (0, 90)");
-  if (!(min_separation_deg > 0.0 && min_separation_deg <= 90.0)) fail("min_separation_deg", "expected in (0, 90]");
-  if (!(max_cluster_angle_deg > 0.0 && max_cluster_angle_deg <= 90.0))
-    fail("max_cluster_angle_deg", "expected in (0, 90]");
-  if (!(min_cluster_fraction >= 0.0 && min_cluster_fraction <= 1.0)) fail("min_cluster_fraction", "expected in [0, 1]");
-  if (!(end_crossing_weight >= 0.0 && end_crossing_weight <= 1.0)) fail("end_crossing_weight", "expected in [0, 1]");
-}
-
 std::vector<LineCrossing> find_crossings(const RangeImage& image, const ScanLines& lines,
                                          const NormalConfig& config) {
   const double sin_min = std::sin(config.min_crossing_angle_deg * kDeg);

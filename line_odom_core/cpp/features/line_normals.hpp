@@ -30,8 +30,6 @@ struct NormalConfig {
   double max_cluster_angle_deg = 90.0;   // normals.max_cluster_angle_deg: farther normals stay unclustered
   double min_cluster_fraction = 0.02;    // normals.min_cluster_fraction: votes a direction needs (of all normals)
   double end_crossing_weight = 0.25;     // normals.end_crossing_weight: weight of crossings at a line's end
-
-  void validate() const;  // throws std::invalid_argument naming the field
 };
 
 // A crossing of H-line h and V-line v at a cell, with the unit normal there (towards the sensor).

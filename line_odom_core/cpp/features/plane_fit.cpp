@@ -176,24 +176,9 @@ struct PlaneFitWorkspace {
 
 }  // namespace
 
-void PlaneFitConfig::validate() const {
-  auto fail = [](const std::string& field, const std::string& what) {
-    throw std::invalid_argument("planes." + field + ": " + what);
-  };
-  if (!(max_distance > 0.0)) fail("max_distance", "expected > 0");
-  if (!(max_normal_angle_deg > 0.0 && max_normal_angle_deg < 90.0))
-    fail("max_normal_angle_deg", "expected in (0, 90)");
-  if (min_points < 3) fail("min_points", "expected >= 3");
-  if (min_lines < 2) fail("min_lines", "expected >= 2");
-  if (!(min_extent >= 0.0)) fail("min_extent", "expected >= 0");
-  if (!(max_rms > 0.0)) fail("max_rms", "expected > 0");
-  if (max_planes < 0) fail("max_planes", "expected >= 0");
-}
-
 std::vector<PlaneFeature> fit_planes(const RangeImage& image, const std::vector<LineCrossing>& crossings,
                                      const PlaneFitConfig& config, const LineFitConfig& line_config,
                                      ScanLines* lines) {
-  config.validate();
   auto& H = lines->h_lines;
   auto& V = lines->v_lines;
   for (auto& f : H) f.plane = -1;

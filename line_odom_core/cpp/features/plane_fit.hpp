@@ -26,8 +26,6 @@ struct PlaneFitConfig {
   double min_extent = 1.0;             // planes.min_extent (m): shorter side of the equal-moment rectangle
   double max_rms = 0.06;               // planes.max_rms (m): point-to-plane rms
   int max_planes = 20;                 // planes.max_planes: the largest ones are kept
-
-  void validate() const;  // throws std::invalid_argument naming the field
 };
 
 // Fits planes to the lines (with normals) of one range image; sets LineFeature::plane of the member lines.

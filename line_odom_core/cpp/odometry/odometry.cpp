@@ -11,6 +11,7 @@
 
 #include "common/stopwatch.hpp"
 #include "features/line_selection.hpp"
+#include "odometry/engine_settings.hpp"
 #include "odometry/frame_features.hpp"
 #include "odometry/motion_fusion.hpp"
 #include "odometry/motion_validation.hpp"
@@ -105,57 +106,12 @@ Solver solver_from_ransac(int best_solver) {
 namespace {
 
 std::shared_ptr<WorkerPool> make_pool(const OdometryConfig& config) {
-  if (config.threads < 0 || config.threads > 256)
-    throw std::invalid_argument("threads: expected 0 (one per hardware thread) to 256, got " +
-                                std::to_string(config.threads));
   const int threads = config.threads > 0 ? config.threads : static_cast<int>(std::thread::hardware_concurrency());
   return threads > 1 ? std::make_shared<WorkerPool>(threads) : nullptr;
 }
 
 const OdometryConfig& validated(const OdometryConfig& config) {
-  config.features.validate();
-  if (config.downsample < 1) throw std::invalid_argument("downsample: expected >= 1");
-  const RegistrationOptions& reg = config.registration;
-  if (reg.passes < 1) throw std::invalid_argument("registration.passes: expected >= 1");
-  if (reg.max_lines < 0) throw std::invalid_argument("registration.max_lines: expected >= 0");
-  if (reg.persistence_window < 0)
-    throw std::invalid_argument("registration.persistence_window: expected >= 0 (frames; 0: off)");
-  if (reg.first_motion_pairs_per_line < 0)
-    throw std::invalid_argument("registration.first_motion_pairs_per_line: expected >= 0");
-  if (reg.window < 1 || reg.window > 10)
-    throw std::invalid_argument("registration.window: expected 1 to 10 scans, got " + std::to_string(reg.window));
-  const PointRefineOptions& pts = config.points;
-  if (!(pts.weight >= 0.0)) throw std::invalid_argument("points.weight: expected >= 0 (0: off)");
-  if (!(pts.voxel >= 0.01)) throw std::invalid_argument("points.voxel: expected >= 0.01 m");
-  if (pts.max_downsample < 1) throw std::invalid_argument("points.max_downsample: expected >= 1");
-  if (pts.stride < 1) throw std::invalid_argument("points.stride: expected >= 1");
-  if (!(pts.huber > 0.0)) throw std::invalid_argument("points.huber: expected > 0 m");
-  if (pts.iterations < 1) throw std::invalid_argument("points.iterations: expected >= 1");
-  if (pts.min_points < 3) throw std::invalid_argument("points.min_points: expected >= 3 (a plane)");
-  if (!(pts.min_planarity >= 0.0 && pts.min_planarity <= 1.0))
-    throw std::invalid_argument("points.min_planarity: expected 0 to 1");
-  if (!(pts.max_translation >= 0.0) || !(pts.max_rotation_deg >= 0.0))
-    throw std::invalid_argument("points.max_translation, points.max_rotation_deg: expected >= 0");
-  const PointMapOptions& map = config.point_map;
-  if (!(map.voxel == 0.0 || map.voxel >= 0.01))
-    throw std::invalid_argument("point_map.voxel: expected 0 (sensor.max_range / 100) or >= 0.01 m");
-  if (map.max_points_per_voxel < 1 || map.max_points_per_voxel > 1000)
-    throw std::invalid_argument("point_map.max_points_per_voxel: expected 1 to 1000");
-  if (map.alignment.max_iterations < 1) throw std::invalid_argument("point_map.max_iterations: expected >= 1");
-  if (!(map.alignment.initial_threshold > 0.0))
-    throw std::invalid_argument("point_map.initial_threshold: expected > 0 m");
-  if (!(map.alignment.min_motion >= 0.0)) throw std::invalid_argument("point_map.min_motion: expected >= 0 m");
-  const ObservabilityOptions& val = config.validation;
-  if (!(val.tolerance > 0.0)) throw std::invalid_argument("validation.tolerance: expected > 0 m");
-  if (!(val.motion_share >= 0.0 && val.motion_share <= 1.0))
-    throw std::invalid_argument("validation.motion_share: expected 0 to 1");
-  if (!(val.significance > 0.0)) throw std::invalid_argument("validation.significance: expected > 0");
-  const int trend = config.sensor.deskew_trend;
-  if (trend != 0 && (trend < 3 || trend > 20))
-    throw std::invalid_argument("sensor.deskew_trend: expected 0 (off) or 3 to 20 frames, got " + std::to_string(trend));
-  if (config.sensor.deskew_iterations < 0 || config.sensor.deskew_iterations > 10)
-    throw std::invalid_argument("sensor.deskew_iterations: expected 0 (deskewed at the prediction only) to 10, got " +
-                                std::to_string(config.sensor.deskew_iterations));
+  odometry_settings().validate(config);
   return config;
 }
 

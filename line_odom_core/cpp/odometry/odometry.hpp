@@ -10,7 +10,6 @@
 #include <memory>
 #include <string>
 #include <utility>
-#include <variant>
 #include <vector>
 
 #include "common/scan_features.hpp"
@@ -133,11 +132,5 @@ class Odometry {
   OdometryState state_;
 };
 
-// Dotted settings ("ransac.max_iterations", ...) as in the ROS parameters and YAML presets.
-using SettingValue = std::variant<bool, std::int64_t, double, std::string>;
-// Sets one setting; returns an empty string on success, else what was wrong (unknown name, wrong type).
-std::string apply_setting(OdometryConfig* config, const std::string& name, const SettingValue& value);
-// Every setting with its current value, in a stable order.
-std::vector<std::pair<std::string, SettingValue>> config_settings(const OdometryConfig& config);
 
 }  // namespace line_odom

@@ -1,5 +1,5 @@
-// The odometry's configuration: one struct per area, mirrored by the dotted settings (odometry_settings.cpp), the
-// ROS parameters and the YAML presets.
+// The odometry's configuration: one struct per area, its dotted settings one row each in engine_settings.cpp (the
+// ROS parameters and the YAML presets follow from the rows).
 #pragma once
 
 #include <cstdint>
