@@ -55,6 +55,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_imu_rotation.py": ("data", "slow"),
     "test_motion_guess.py": ("data", "slow"),
     "test_odometry_kitti.py": ("data", "slow"),
+    "test_validation.py": ("data", "slow"),
     "test_odometry_tum.py": ("data", "slow"),
     "test_recovery.py": ("data", "slow"),
     "test_turns.py": ("data", "slow"),

@@ -116,7 +116,8 @@ def test_schema_entries_are_complete_and_defaults_valid():
         assert e.type in (bool, int, float, str) and e.description
         assert cfg.validate_value(e.name, e.default) == e.default
         if e.type in (int, float):
-            assert e.min is not None and e.max is not None and e.min <= e.default <= e.max
+            assert e.min is not None and e.max is not None
+            assert e.min <= e.default <= e.max or (e.zero_is_off and e.default == 0)
         if e.type is str:
             assert e.name in cfg.CHOICES and e.default in cfg.CHOICES[e.name]
 

@@ -293,6 +293,7 @@ PassOutcome LineRegistration::register_features(const ScanFeatures& prev, const 
   out.failure = failure;
   out.have_rival = have_rival;
   out.rival = rival;
+  out.candidates = std::make_shared<const Correspondences>(std::move(corr));
   return out;
 }
 
@@ -337,10 +338,11 @@ double LineRegistration::support(CandidateIndex& index, const ScanFeatures& cur,
                       RefineOptions{}.min_line_sine);
 }
 
-bool LineRegistration::hold_axes(const Correspondences& corr, const LinePairTable& table, const RigidTransform& held,
-                                 int axes, PassOutcome* outcome) const {
+bool LineRegistration::hold_directions(const Correspondences& corr, const LinePairTable& table,
+                                       const RigidTransform& held, int axes, const Mat6* projector,
+                                       PassOutcome* outcome) const {
   RefineResult partial;
-  if (!refine_motion_partial(corr, table, outcome->best, held, axes, false, refine_options(), &partial) ||
+  if (!refine_motion_partial(corr, table, outcome->best, held, axes, false, refine_options(), &partial, projector) ||
       !partial.T.is_finite() || partial.degenerate)
     return false;
   outcome->best = partial.T;

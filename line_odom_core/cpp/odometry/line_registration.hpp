@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 
 #include "common/scan_features.hpp"
@@ -31,6 +32,8 @@ struct PassOutcome {
   // are different motions (the candidates, picked near the guess, favour it: motion_search.cpp first_motion).
   bool have_rival = false;
   RigidTransform rival;
+  // The last pass's candidate pairs (built under its start, close to `best`), for the checks after the passes.
+  std::shared_ptr<const Correspondences> candidates;
 };
 
 // An estimate of every direction of the motion (none held at the prediction).
@@ -81,10 +84,11 @@ class LineRegistration {
   RefineOptions refine_options() const;
   // Finite and within registration.max_translation / max_rotation_deg of `prediction`.
   bool within_reach(const RigidTransform& prediction, const RigidTransform& T) const;
-  // `outcome` with the directions of `axes` (bits of xi) held at `held`, the others refined on `corr` from the
-  // outcome's estimate (refine.hpp: refine_motion_partial); false when that refinement does not hold.
-  bool hold_axes(const Correspondences& corr, const LinePairTable& table, const RigidTransform& held, int axes,
-                 PassOutcome* outcome) const;
+  // `outcome` with the directions of `axes` (bits of xi) and of `projector` (nullable, xi coordinates) held at
+  // `held`, the others refined on `corr` from the outcome's estimate (refine.hpp: refine_motion_partial); false when
+  // that refinement does not hold (nothing, or everything, to hold).
+  bool hold_directions(const Correspondences& corr, const LinePairTable& table, const RigidTransform& held, int axes,
+                       const Mat6* projector, PassOutcome* outcome) const;
   const OdometryConfig& config() const { return *config_; }
   WorkerPool* pool() const { return pool_; }
 

@@ -1,10 +1,12 @@
 #include "odometry/motion_validation.hpp"
 
-#include <Eigen/Eigenvalues>
-
+#include <algorithm>
 #include <bitset>
+#include <cmath>
 #include <cstdio>
+#include <memory>
 #include <string>
+#include <utility>
 
 #include "common/stopwatch.hpp"
 
@@ -13,105 +15,143 @@ namespace line_odom {
 namespace {
 
 constexpr const char* kAxisNames[6] = {"x", "y", "z", "rx", "ry", "rz"};
+constexpr int kAllAxes = 0x3f;
 
 int count_axes(int axes) { return static_cast<int>(std::bitset<6>(static_cast<unsigned>(axes)).count()); }
 
-// The axes of xi mostly inside the span of `projector` (a partial estimate's held directions).
-int axes_of(const Mat6& projector) {
+std::string axes_text(int axes) {
+  std::string text;
+  for (int k = 0; k < 6; ++k)
+    if (axes >> k & 1) text += std::string(text.empty() ? "" : ", ") + kAxisNames[k];
+  return text;
+}
+
+// The axes of xi (bits) along which a motion of covariance `covariance` is known to a third of `tolerance` (rotations
+// at `lever`).
+int resolved_axes(const Mat6& covariance, double tolerance, double lever) {
   int axes = 0;
   for (int k = 0; k < 6; ++k)
-    if (projector(k, k) > 0.5) axes |= 1 << k;
+    if (std::sqrt(std::max(0.0, covariance(k, k))) * (k < 3 ? 1.0 : lever) < tolerance / 3.0) axes |= 1 << k;
   return axes;
 }
 
-std::string unobserved_text(const Observability& obs, double significance) {
-  std::string text;
-  for (int k = 0; k < 6; ++k) {
-    if (!(obs.unobserved >> k & 1)) continue;
-    char item[48];
-    std::snprintf(item, sizeof item, "%s%s z %.1f", text.empty() ? "" : ", ", kAxisNames[k], obs.z[k]);
-    text += item;
-  }
-  char tail[64];
-  std::snprintf(tail, sizeof tail, " < validation.significance %.1f", significance);
-  return text + tail;
-}
+
 
 }  // namespace
 
 Observability MotionValidation::observe(const ValidationFrame& frame, const PassOutcome& outcome,
                                         Correspondences* corr) const {
   const OdometryConfig& config = lines_.config();
-  CandidateIndex index(*frame.previous);
-  build_candidates(index, *frame.current, outcome.best, lines_.last_pass_candidates(), corr, nullptr, lines_.pool());
+  if (outcome.candidates) {
+    *corr = *outcome.candidates;
+  } else {
+    CandidateIndex index(*frame.previous);
+    build_candidates(index, *frame.current, outcome.best, lines_.last_pass_candidates(), corr, nullptr, lines_.pool());
+  }
   const LinePairTable table(*corr);
   return test_observability(*corr, table, outcome.best, config.ransac.inlier_threshold,
                             RefineOptions{}.min_line_sine, observability_push(outcome.best, config.validation),
                             config.validation.significance);
 }
 
-RigidTransform MotionValidation::validate(const ValidationFrame& frame, const PointMapTracker& point_map,
-                                          PassOutcome* outcome, FrameStats* st) const {
-  const ObservabilityOptions& options = lines_.config().validation;
-  if (!options.enabled) return frame.prediction;
+int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
+                                      const Observability& obs, const PointMapTracker& point_map,
+                                      const RigidTransform* by_points, const Mat6& points_covariance) const {
+  // A first motion is judged by the lines alone: the map then holds one scan, whose sampling a sparse scan follows (its
+  // rings sit where that scan's rings sat when standing still), so its alignment leans to standing still.
+  if (by_points == nullptr || frame.first_motion) return obs.unobserved;
+  // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
+  // tolerance, the lines' motion is not taken; only where the points resolve the direction to a third of the
+  // tolerance (along a corridor, or the street a car drives down, they may not: their motion there is no evidence).
+  const Vec6 difference = motion_difference(outcome.best, *by_points);
+  const double tolerance = observability_push(outcome.best, lines_.config().validation);
+  const int resolved = resolved_axes(points_covariance, tolerance, obs.lever);
+  int open = 0;
+  for (int k = 0; k < 6; ++k)
+    if ((resolved >> k & 1) && std::abs(difference[k]) * (k < 3 ? 1.0 : obs.lever) > tolerance) open |= 1 << k;
+  // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
+  // stopped short of it (a first step too wide, a flat direction), and the points confirm the lines.
+  if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) open = 0;
+  return open;
+}
+
+Validated MotionValidation::validate(const ValidationFrame& frame, const PointMapTracker& point_map,
+                                     PassOutcome* outcome, FrameStats* st) const {
+  Validated out;
+  out.reference = frame.prediction;
+  if (!lines_.config().validation.enabled) return out;
   Stopwatch watch;
+  RigidTransform by_points;
+  Mat6 points_covariance;
+  int matched = 0;
+  const bool aligned = !frame.guessed && point_map.align(*frame.points, frame.previous_pose, frame.prediction,
+                                                         &by_points, &matched, &points_covariance);
+  st->points_aligned = aligned;
+  st->point_map_matches = matched;
+  const RigidTransform* points = aligned ? &by_points : nullptr;
+  const RigidTransform reference = aligned ? by_points : frame.prediction;  // what open directions are held at
+
   Correspondences corr;
   Observability obs;
-  const bool full = registered_in_full(*outcome);
-  if (full) obs = observe(frame, *outcome, &corr);
-  RigidTransform reference = frame.prediction;
-  const bool weak = !full || obs.unobserved != 0 || frame.first_motion;
-  RigidTransform by_points;
-  int matched = 0;
-  const bool aligned = weak && !frame.guessed &&
-                       point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points, &matched);
-  st->point_map_matches = matched;
-  if (aligned) {
-    st->points_aligned = true;
-    reference = by_points;
-    if (!full || frame.first_motion) {
-      // The lines again from where the points put the scan: a first motion beyond the candidates' reach from
-      // standing still, or a registration that failed from the prediction.
-      FrameStats other_stats;
-      PassOutcome other = lines_.register_features(*frame.previous, *frame.current, frame.prediction, by_points, true,
-                                                   frame.registration, &other_stats);
-      st->ms.candidates += other_stats.ms.candidates;
-      st->ms.ransac += other_stats.ms.ransac;
-      st->iterations += other_stats.iterations;
-      if (registered_in_full(other)) {
-        Correspondences other_corr;
-        const Observability other_obs = observe(frame, other, &other_corr);
-        if (!full || count_axes(other_obs.unobserved) < count_axes(obs.unobserved)) {
-          *outcome = std::move(other);
-          corr = std::move(other_corr);
-          obs = other_obs;
-          st->candidates = other_stats.candidates;
-          st->plane_candidates = other_stats.plane_candidates;
-          st->passes = other_stats.passes;
-        }
+  int open = kAllAxes;
+  if (registered_in_full(*outcome)) {
+    obs = observe(frame, *outcome, &corr);
+    open = open_directions(frame, *outcome, obs, point_map, points, points_covariance);
+  }
+  if (aligned && open != 0 && (!registered_in_full(*outcome) || frame.first_motion)) {
+    // The lines again from where the points put the scan: a first motion beyond the candidates' reach from standing
+    // still, or a registration that failed from the prediction.
+    FrameStats other_stats;
+    PassOutcome other = lines_.register_features(*frame.previous, *frame.current, frame.prediction, by_points, true,
+                                                 frame.registration, &other_stats);
+    st->ms.candidates += other_stats.ms.candidates;
+    st->ms.ransac += other_stats.ms.ransac;
+    st->iterations += other_stats.iterations;
+    if (registered_in_full(other)) {
+      Correspondences other_corr;
+      const Observability other_obs = observe(frame, other, &other_corr);
+      const int other_open = open_directions(frame, other, other_obs, point_map, points, points_covariance);
+      if (count_axes(other_open) < count_axes(open)) {
+        *outcome = std::move(other);
+        corr = std::move(other_corr);
+        obs = other_obs;
+        open = other_open;
+        st->candidates = other_stats.candidates;
+        st->plane_candidates = other_stats.plane_candidates;
+        st->passes = other_stats.passes;
       }
     }
   }
   st->observability = obs.z;
-  st->unobserved = obs.unobserved;
-  if (registered_in_full(*outcome) && obs.unobserved != 0) {
-    // Held where the lines do not decide: at the points' motion, or at a guess; with neither, the lines' own motion
-    // stands and only the flag and the covariance say so (fusion holds nothing then).
-    const bool held = (aligned || frame.guessed) &&
-                      lines_.hold_axes(corr, LinePairTable(corr), reference, obs.unobserved, outcome);
-    const std::string why = "the lines do not pin down " + unobserved_text(obs, options.significance);
-    outcome->failure = held ? why + (aligned ? ": held at the point map's alignment" : ": held at the guess") : why;
-    if (!held) outcome->stats.degenerate = false;
-  } else if (aligned && outcome->have && outcome->held_directions > 0) {
-    // A partial estimate holds its unobserved directions at the points' motion rather than the prediction's.
-    Correspondences held_corr;
-    observe(frame, *outcome, &held_corr);
-    const std::string failure = outcome->failure;
-    if (lines_.hold_axes(held_corr, LinePairTable(held_corr), by_points, axes_of(outcome->held_projector), outcome))
-      outcome->failure = failure + ": held at the point map's alignment";
+  st->unobserved = registered_in_full(*outcome) ? open : 0;
+
+  if (registered_in_full(*outcome) && open != 0) {
+    // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion
+    // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
+    const bool judged = aligned && !frame.first_motion;
+    char why[160];
+    std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
+                  judged ? "the point map's alignment differs by more than validation.tolerance"
+                         : "McNemar z under validation.significance");
+    if (!judged && !frame.guessed) {
+      outcome->failure = why;  // flagged: nothing better to hold (the prediction, or a one-scan map's alignment)
+    } else if (aligned && open == kAllAxes) {
+      outcome->have = false;
+      outcome->failure = std::string(why) + ": the point map's alignment taken";
+      out.reference = by_points;
+    } else if ((aligned || frame.guessed) &&
+               lines_.hold_directions(corr, LinePairTable(corr), reference, open, nullptr, outcome)) {
+      outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
+      out.reference = reference;
+    } else {
+      outcome->failure = why;
+    }
+  } else if (aligned && !outcome->have) {
+    outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "the point map's alignment taken";
+    out.reference = by_points;
   }
   st->ms.validation += watch.ms();
-  return reference;
+  return out;
 }
 
 }  // namespace line_odom

@@ -1,10 +1,12 @@
-// Whether the lines pin the frame's motion down, and the points' answer where they do not (beyond the paper). An
-// H-line and a V-line on one plane meet under any motion within that plane, so on a street of walls a wrong motion
-// along the street can collect as many intersection inliers as the right one: each direction of the lines' motion is
-// tested against the motion pushed either way (observability.hpp). Where one is not pinned down, where the lines
-// registered nothing, and at a first motion, the scan's points are aligned to the local map of the last scans' points
-// (point_map_tracker.hpp): the lines register again from there, and directions they still leave open are held at the
-// points' motion, flagged, with at least the fallback covariance.
+// Each frame's motion checked against evidence the intersection inliers did not produce (beyond the paper). An H-line
+// and a V-line on one plane meet under any motion within that plane, so on a street of walls a wrong motion along the
+// street can collect as many inliers as the right one. The scan's points are aligned to the local map of the last
+// scans' points (point_map_tracker.hpp) from the prediction: along the directions where that motion and the lines'
+// differ by more than validation.tolerance, the lines' motion is not taken: held at the points' motion, the frame
+// flagged with at least the fallback covariance there. Without the point map, and at a first motion (when the map holds
+// one scan), the lines' own test decides (each direction against the motion pushed either way, observability.hpp).
+// Where the lines registered nothing, or at a first motion they did not confirm, they register again from the points'
+// motion.
 #pragma once
 
 #include <vector>
@@ -25,18 +27,28 @@ struct ValidationFrame {
   RegistrationFrame registration;
 };
 
+struct Validated {
+  RigidTransform reference;  // what the outcome's held directions (and a failed registration) take: the points'
+                             // alignment where they were held at it or it was taken, else the prediction
+};
+
 class MotionValidation {
  public:
   explicit MotionValidation(const LineRegistration& lines) : lines_(lines) {}
 
-  // Checks *outcome and, where needed, asks the point map; returns the motion the outcome's held directions (and a
-  // failed registration) take: the points' alignment when it was made, else the prediction.
-  RigidTransform validate(const ValidationFrame& frame, const PointMapTracker& point_map, PassOutcome* outcome,
-                          FrameStats* st) const;
+  // Checks *outcome and, where needed, asks the point map.
+  Validated validate(const ValidationFrame& frame, const PointMapTracker& point_map, PassOutcome* outcome,
+                     FrameStats* st) const;
 
  private:
   // McNemar's test of `outcome` on the last pass's candidates under its motion (filled into corr).
   Observability observe(const ValidationFrame& frame, const PassOutcome& outcome, Correspondences* corr) const;
+  // The directions (bits of xi) along which `outcome` is not confirmed: those the points' motion (nullable) puts
+  // farther than the tolerance, where they resolve it (points_covariance) and do not fit the lines' motion as well;
+  // without it, and at a first motion, those `obs` leaves open.
+  int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
+                      const PointMapTracker& point_map, const RigidTransform* by_points,
+                      const Mat6& points_covariance) const;
 
   const LineRegistration& lines_;
 };

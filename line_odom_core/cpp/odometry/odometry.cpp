@@ -442,10 +442,10 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     check.first_motion = first_motion;
     check.guessed = guessed;
     check.registration = frame;
-    const RigidTransform reference = MotionValidation(lines_).validate(check, s.point_map, &outcome, &st);
+    const Validated validated = MotionValidation(lines_).validate(check, s.point_map, &outcome, &st);
 
     // 6. Fusion with the motion model.
-    const FusedMotion fused = fuse_motion(outcome, prediction, reference, reg, !first_motion, unmeasured);
+    const FusedMotion fused = fuse_motion(outcome, prediction, validated.reference, reg, !first_motion, unmeasured);
     result.delta = fused.delta;
     result.covariance = fused.covariance;
     st.registered = fused.registered;
@@ -489,13 +489,16 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
                         reg.constant_velocity);
     st.unmeasured_directions = static_cast<int>(std::lround(s.prediction.unmeasured_projector().trace()));
     s.sweeps.record_motion(result.delta, dt);
-    if (s.point_map.enabled()) {
+    // The map holds scans at poses the scans measured: a frame whose pose was partly held stays out (built on, the
+    // held motion would later be confirmed by itself). A sweep with point times enters only once deskewed at a known
+    // velocity: before the first motion it is used as measured, smeared along the motion by up to a sweep's travel.
+    if (s.point_map.enabled() && !st.degenerate && (sweep == nullptr || !first_motion)) {
       Stopwatch stage;
-      s.point_map.add(scan.points, s.pose, prediction, result.delta, !first_motion);
+      s.point_map.add(scan.points, s.pose, prediction, result.delta);
       st.ms.validation += stage.ms();
     }
   }
-  if (s.frames == 0 && s.point_map.enabled()) s.point_map.add(scan.points, s.pose, {}, {}, false);
+  if (s.frames == 0 && s.point_map.enabled() && sweep == nullptr) s.point_map.add(scan.points, s.pose, {}, {});
   result.pose = s.pose;
 
   if (points_refining()) s.scans.previous_surface = std::move(scan.surface);

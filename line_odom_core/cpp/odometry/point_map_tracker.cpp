@@ -7,6 +7,18 @@ namespace {
 constexpr double kAlignedVoxel = 1.5;  // map voxels: the scan thinned to one point per 1.5 voxels to be aligned, and
 constexpr double kMapVoxel = 0.5;      // to one per half voxel to enter the map (KISS-ICP's choices)
 constexpr int kMinMatched = 50;        // fewer matched points place no scan
+constexpr std::size_t kAlignedPoints = 1500;  // points aligned at most, spread over the scan: enough to place it to a
+                                              // fraction of validation.tolerance
+
+// Every k-th point, at most `budget` of them.
+std::vector<Vec3> spread(std::vector<Vec3> points, std::size_t budget) {
+  if (points.size() <= budget) return points;
+  const std::size_t step = (points.size() + budget - 1) / budget;
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < points.size(); i += step) points[kept++] = points[i];
+  points.resize(kept);
+  return points;
+}
 
 }  // namespace
 
@@ -17,21 +29,49 @@ PointMapTracker::PointMapTracker(const PointMapOptions& options, double max_rang
       map_(voxel_, options.max_points_per_voxel),
       model_error_(options.alignment.initial_threshold, options.alignment.min_motion, max_range) {}
 
+namespace {
+
+// The adjoint of T: a left perturbation xi (translation, rotation) of X becomes Ad(T) xi of T X ... of T^-1-moved poses.
+Mat6 adjoint(const RigidTransform& T) {
+  Mat6 A = Mat6::Zero();
+  Mat3 tx;
+  tx << 0.0, -T.t.z(), T.t.y(), T.t.z(), 0.0, -T.t.x(), -T.t.y(), T.t.x(), 0.0;
+  A.topLeftCorner<3, 3>() = T.R;
+  A.topRightCorner<3, 3>() = tx * T.R;
+  A.bottomRightCorner<3, 3>() = T.R;
+  return A;
+}
+
+}  // namespace
+
 bool PointMapTracker::align(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
-                            const RigidTransform& prediction, RigidTransform* motion, int* matched) const {
+                            const RigidTransform& prediction, RigidTransform* motion, int* matched,
+                            Mat6* covariance) const {
   if (!ready()) return false;
-  const PointAlignment aligned = align_points(map_, voxel_downsample(points, kAlignedVoxel * voxel_),
+  const PointAlignment aligned = align_points(map_, spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints),
                                               previous_pose * prediction, model_error_.sigma(), options_.alignment);
   *matched = aligned.matched;
   if (aligned.matched < kMinMatched || !aligned.pose.is_finite()) return false;
   *motion = previous_pose.inverse() * aligned.pose;
+  if (covariance != nullptr) {
+    // exp(xi) A seen from the previous pose P: P^-1 exp(xi) A = exp(Ad(P^-1) xi) P^-1 A
+    const Mat6 to_previous = adjoint(previous_pose.inverse());
+    *covariance = to_previous * aligned.covariance * to_previous.transpose();
+  }
   return true;
 }
 
+bool PointMapTracker::fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
+                                   const RigidTransform& a, const RigidTransform& b) const {
+  const std::vector<Vec3> checked = spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints);
+  const double sigma = model_error_.sigma();
+  return point_cost(map_, checked, previous_pose * a, sigma) <= point_cost(map_, checked, previous_pose * b, sigma);
+}
+
 void PointMapTracker::add(const std::vector<Vec3>& points, const RigidTransform& pose,
-                          const RigidTransform& predicted, const RigidTransform& registered, bool had_model) {
+                          const RigidTransform& predicted, const RigidTransform& registered) {
   if (!options_.enabled) return;
-  if (had_model) model_error_.add(predicted, registered);
+  model_error_.add(predicted, registered);
   map_.add(voxel_downsample(points, kMapVoxel * voxel_), pose, max_range_);
 }
 

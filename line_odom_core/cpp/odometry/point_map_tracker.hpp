@@ -20,12 +20,15 @@ class PointMapTracker {
   bool ready() const { return options_.enabled && !map_.empty(); }
   // The motion T_prev_curr that aligns `points` (this scan, sensor frame) to the map, from `prediction` after the
   // previous scan at `previous_pose`; false when too few points found a map point.
+  // `covariance` (nullable): of the motion, in its own chart (motion_difference; x y z rx ry rz of the previous frame).
   bool align(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& prediction,
-             RigidTransform* motion, int* matched) const;
-  // A frame done: its points at `pose`; `predicted` against `registered` tells the motion model's error (not on a first
-  // motion, which had no model).
+             RigidTransform* motion, int* matched, Mat6* covariance = nullptr) const;
+  // Whether `points` fit the map at least as well at motion `a` as at `b` (point_cost; both after `previous_pose`).
+  bool fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
+                    const RigidTransform& b) const;
+  // A frame done: its points at `pose`; `predicted` against `registered` tells the motion model's error.
   void add(const std::vector<Vec3>& points, const RigidTransform& pose, const RigidTransform& predicted,
-           const RigidTransform& registered, bool had_model);
+           const RigidTransform& registered);
   void reset();
 
  private:

@@ -414,7 +414,7 @@ RigidTransform apply_motion_difference(const Vec6& xi, const RigidTransform& ref
 
 bool refine_motion_partial(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T_from,
                            const RigidTransform& prior, int locked_axes, bool lock_weak, const RefineOptions& options,
-                           RefineResult* result) {
+                           RefineResult* result, const Mat6* locked_projector) {
   if (result) *result = RefineResult{};
   if (result) result->T = T_from;
   const NormalEquations ne = accumulate(data, pairs, T_from, options, pair_weight_scale(data));
@@ -426,6 +426,11 @@ bool refine_motion_partial(const Correspondences& data, const LinePairTable& pai
   };
   for (int axis = 0; axis < 6; ++axis)
     if (locked_axes & (1 << axis)) lock(Vec6::Unit(axis));
+  if (locked_projector != nullptr) {  // its directions in xi, u, are S^-1 u in the scaled coordinates
+    const Eigen::SelfAdjointEigenSolver<Mat6> es(*locked_projector);
+    for (int k = 0; k < 6; ++k)
+      if (es.eigenvalues()(k) > 0.5) lock(locked.scale.cwiseInverse().asDiagonal() * es.eigenvectors().col(k));
+  }
   if (lock_weak) {
     Eigen::SelfAdjointEigenSolver<Mat6> es(locked.scaled(ne.H));
     const double lmax = es.eigenvalues()(5);

@@ -85,9 +85,10 @@ bool refine_motion(const Correspondences& data, const LinePairTable& pairs, cons
 // along the locked directions (the refinement says nothing there: the caller supplies what the prior knows);
 // the prior's error reaches the free directions through held_sensitivity.
 // Returns false when nothing (or everything) would be locked.
+// `locked_projector` (nullable): also lock the directions of this projector (xi coordinates).
 bool refine_motion_partial(const Correspondences& data, const LinePairTable& pairs, const RigidTransform& T_from,
                            const RigidTransform& prior, int locked_axes, bool lock_weak, const RefineOptions& options,
-                           RefineResult* result);
+                           RefineResult* result, const Mat6* locked_projector = nullptr);
 
 // T = step * reference with step = (rotation vector, translation) xi = (t, r): the chart the motion prior uses.
 Vec6 motion_difference(const RigidTransform& T, const RigidTransform& reference);

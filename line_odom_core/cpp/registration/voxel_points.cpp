@@ -1,5 +1,7 @@
 #include "registration/voxel_points.hpp"
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -47,11 +49,11 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
     bool inserted = false;
     const std::int32_t slot = table_.insert(key(x, y, z), &inserted);
     if (inserted) {
-      voxels_.push_back({x, y, z, static_cast<int>(points_.size()), 0});
+      voxels_.push_back(Voxel{x, y, z, static_cast<int>(points_.size()), 0});
       points_.resize(points_.size() + per_voxel_);
     }
     Voxel& v = voxels_[slot];
-    if (v.count < per_voxel_) points_[v.first + v.count++] = q;
+    if (v.count < per_voxel_) points_[v.first + v.count++] = q;  // (its plane is computed again at the new count)
   }
   // Drop the voxels out of the sensor's reach once they are a quarter of the map (they are never near a scan's points;
   // dropping compacts the points and builds the table again).
@@ -76,11 +78,11 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
   rebuild_table();
 }
 
-bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_point) const {
+bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_point, int* voxel) const {
   if (voxels_.empty()) return false;
-  // Within half a voxel of q every point lies in the 2 x 2 x 2 voxels around the corner nearest q; farther, the
-  // 3 x 3 x 3 around q's voxel hold what is within one voxel.
-  const bool near = max_distance <= 0.5 * voxel_;
+  // Within a voxel, the 2 x 2 x 2 voxels around the voxel corner nearest q (exact within half a voxel of q, the nearest
+  // of them farther); farther (an alignment's first steps from a poor guess), the 3 x 3 x 3 around q's voxel.
+  const bool near = max_distance <= voxel_;
   const Vec3 cell = q / voxel_;
   std::int64_t lo[3];
   for (int k = 0; k < 3; ++k)
@@ -99,11 +101,42 @@ bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_po
           if (d2 < best) {
             best = d2;
             *nearest_point = points_[v.first + k];
+            if (voxel != nullptr) *voxel = slot;
             found = true;
           }
         }
       }
   return found;
+}
+
+bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal) const {
+  // As SurfaceMap's voxel planes: at least kMinPlanePoints points whose scatter's eigenvalues l0 <= l1 <= l2 spread
+  // over two directions, (l1 - l0) / l2 >= kMinPlanarity.
+  constexpr int kMinPlanePoints = 5;
+  constexpr double kMinPlanarity = 0.1;
+  const Voxel& v = voxels_[index];
+  if (v.plane_count != v.count) {
+    v.plane_count = v.count;
+    v.planar = false;
+    if (v.count >= kMinPlanePoints) {
+      Vec3 m = Vec3::Zero();
+      for (int k = 0; k < v.count; ++k) m += points_[v.first + k];
+      m /= v.count;
+      Mat3 scatter = Mat3::Zero();
+      for (int k = 0; k < v.count; ++k) {
+        const Vec3 d = points_[v.first + k] - m;
+        scatter += d * d.transpose();
+      }
+      const Eigen::SelfAdjointEigenSolver<Mat3> es(scatter);
+      const Vec3 l = es.eigenvalues();
+      v.mean = m;
+      v.normal = es.eigenvectors().col(0);
+      v.planar = l(2) > 0.0 && (l(1) - l(0)) / l(2) >= kMinPlanarity;
+    }
+  }
+  *mean = v.mean;
+  *normal = v.normal;
+  return v.planar;
 }
 
 std::vector<Vec3> voxel_downsample(const std::vector<Vec3>& points, double voxel) {

@@ -25,15 +25,22 @@ class VoxelPointMap {
   std::size_t voxels() const { return voxels_.size(); }
   double voxel() const { return voxel_; }
 
-  // The map point nearest to q among the 8 voxels around the voxel corner nearest q (exact within half a voxel), within
-  // `max_distance`; false when there is none.
-  bool nearest(const Vec3& q, double max_distance, Vec3* nearest_point) const;
+  // The map point nearest to q within `max_distance`: up to a voxel away, among the 8 voxels around the voxel corner
+  // nearest q (exact within half a voxel); farther, among the 27 around q's voxel. False when there is none.
+  // `voxel` (nullable): the index of the voxel holding it.
+  bool nearest(const Vec3& q, double max_distance, Vec3* nearest_point, int* voxel = nullptr) const;
+  // The plane of a voxel's points (mean and unit normal), computed once per change of the voxel: false when they are
+  // too few or do not spread over a plane (a single ring's arc, a pole).
+  bool plane(int voxel, Vec3* mean, Vec3* normal) const;
 
  private:
   struct Voxel {
     std::int64_t x, y, z;
     int first;  // into points_: per_voxel_ slots from here
     int count;
+    mutable int plane_count = -1;  // the count its plane was computed at
+    mutable bool planar = false;
+    mutable Vec3 mean = Vec3::Zero(), normal = Vec3::Zero();
   };
   std::uint64_t key(std::int64_t x, std::int64_t y, std::int64_t z) const;
   void rebuild_table();
