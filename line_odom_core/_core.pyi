@@ -1,5 +1,5 @@
 """Type stubs of the C++ engine module line_odom_core._core (pybind11)."""
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -26,14 +26,6 @@ def solve_7l(segments_a: npt.ArrayLike, segments_b: npt.ArrayLike, init: npt.Arr
     """7L (paper 4): segments_a (7,2,3) meet T segments_b (7,2,3), from init (4,4) (None = identity).
     method: "gauss_newton" (default) or "alternating_projection" (the paper's). 0 or 1 poses (4,4)."""
 
-def benchmark_solver(solver: str, instances: int = 1000, repetitions: int = 5, seed: int = 0, *,
-                     method: str = "gauss_newton", max_iterations: int = 30000, tolerance: float = 1e-12,
-                     found_tolerance: float = 1e-6, guess_rotation_deg: float = 5.0, guess_translation: float = 0.5,
-                     max_translation: float = 2.0, scene_radius: float = 10.0, chunk: int = 0) -> dict[str, Any]:
-    """C++ timing loop over seeded noise-free instances of "1l2p", "3l1p" or "7l", timed in chunks of `chunk`
-    consecutive calls (0: auto). Keys: solver, method, instances, repetitions, median_us, p90_us, min_us, mean_us,
-    chunk, solutions_per_call, found_rate, no_solution_rate, median_error, p99_error, mean_iterations."""
-
 def estimate_motion(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, planes_a: npt.ArrayLike | None,
                     planes_b: npt.ArrayLike | None, *, segments_a: npt.ArrayLike | None = None,
                     segments_b: npt.ArrayLike | None = None, weights: npt.ArrayLike | None = None,
@@ -50,15 +42,6 @@ def estimate_motion(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, planes_a: np
     pushed 20 thresholds along 8 diagonals; success needs inlier_weight >= min_inlier_contrast * it
     + 3 sqrt(it)), dropped_line_pairs, dropped_plane_pairs,
     line_inlier_mask (N,), plane_inlier_mask (M,)."""
-
-def _ransac_fit_line_2d(points: npt.ArrayLike, threshold: float, *, weights: npt.ArrayLike | None = None,
-                        max_iterations: int = 1000, min_iterations: int = 0, confidence: float = 0.999,
-                        seed: int = 0, local_optimisation: bool = True
-                        ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
-def _ransac_translation_2d(points_a: npt.ArrayLike, points_b: npt.ArrayLike, directions: npt.ArrayLike,
-                           projections: npt.ArrayLike, threshold: float, *, max_iterations: int = 1000,
-                           min_iterations: int = 0, confidence: float = 0.999, seed: int = 0
-                           ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
 
 # ---- scan features ----
 
@@ -170,11 +153,6 @@ class Odometry:
     def last_lines(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
     def frames(self) -> int: ...
     def settings(self) -> dict[str, bool | int | float | str]: ...
-
-def _motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence[bool] | None = None,
-                        dt: Sequence[float] | None = None
-                        ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each motion (test hook)
-def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...
 
 # ---- settings (odometry/engine_settings.cpp) ----
 
