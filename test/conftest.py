@@ -31,6 +31,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_node_processor.py": ("engine",),
     "test_ransac.py": ("engine",),
     "test_solvers.py": ("engine",),
+    "test_stubs.py": ("engine",),
     # the engine on simulated drives
     "test_degenerate_scenes.py": ("engine", "slow"),
     "test_deskew.py": ("engine", "slow"),
