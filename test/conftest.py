@@ -20,6 +20,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_config.py": ("unit",),
     "test_docs.py": ("unit",),
     "test_engine_ros_free.py": ("unit",),
+    "test_file_sizes.py": ("unit",),
     "test_fuzz_convert.py": ("unit",),
     "test_node_launch_files.py": ("unit",),
     "test_settings_table.py": ("unit",),
