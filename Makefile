@@ -18,4 +18,4 @@ test: setup
 
 # removes what setup and builds created inside the checkout (not ../shared)
 clean:
-	rm -rf .venv build install log .pytest_cache .hypothesis line_odom_core/_core.*.so *.egg-info
+	rm -rf .venv build install log .pytest_cache .hypothesis line_odom_core/_core.*.so line_odom_core/_testing.*.so *.egg-info

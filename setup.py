@@ -1,4 +1,5 @@
-"""Builds line_odom (ament_python) and its C++17 engine line_odom_core._core (pybind11 + Eigen)."""
+"""Builds line_odom (ament_python) and its C++17 engine (pybind11 + Eigen): line_odom_core._core, the module the node
+imports, and line_odom_core._testing, the hooks of the tests and benchmarks."""
 import glob
 import os
 import sys
@@ -40,27 +41,42 @@ def eigen_include_dir():
                        "to the directory that contains Eigen/Core")
 
 
-sources = sorted(glob.glob("line_odom_core/cpp/**/*.cpp", recursive=True))
+# The engine's sources (every folder but bindings/ and testing/) go into both modules; `_core` adds the bindings the
+# node uses, `_testing` the hooks of the tests and benchmarks (testing/), so that the production module carries none.
+CPP = "line_odom_core/cpp"
+all_sources = sorted(glob.glob(f"{CPP}/**/*.cpp", recursive=True))
+engine_sources = [s for s in all_sources if not s.startswith((f"{CPP}/bindings/", f"{CPP}/testing/"))]
+binding_sources = sorted(glob.glob(f"{CPP}/bindings/*.cpp"))
+testing_sources = sorted(glob.glob(f"{CPP}/testing/*.cpp"))
+shared_binding_sources = [f"{CPP}/bindings/types.cpp", f"{CPP}/bindings/settings.cpp"]
 # -fno-math-errno: the engine never reads errno, and with it GCC keeps a libm call and a branch beside every inlined
 # sqrt (so no sqrt loop vectorizes). The square roots themselves are the same IEEE operation either way.
 compile_flags = ["-O3", "-DNDEBUG", "-fvisibility=hidden", "-fno-math-errno"]
-core = Pybind11Extension(
-    "line_odom_core._core",
-    sources,
-    include_dirs=[eigen_include_dir(), "line_odom_core/cpp"],
-    depends=engine_headers,  # a header-only change rebuilds the extension too
-    cxx_std=17,
-    extra_compile_args=compile_flags,
-    define_macros=[("LINE_ODOM_VERSION", f'"{VERSION}"'),
-                   ("LINE_ODOM_COMPILE_FLAGS", '"' + " ".join(compile_flags) + '"')],
-)
+
+
+def engine_extension(name: str, sources: list[str]) -> Pybind11Extension:
+    # the same flags and macros for both modules: an object file compiled for one is valid for the other
+    return Pybind11Extension(
+        name,
+        sources,
+        include_dirs=[eigen_include_dir(), CPP],
+        depends=engine_headers,  # a header-only change rebuilds the extension too
+        cxx_std=17,
+        extra_compile_args=compile_flags,
+        define_macros=[("LINE_ODOM_VERSION", f'"{VERSION}"'),
+                       ("LINE_ODOM_COMPILE_FLAGS", '"' + " ".join(compile_flags) + '"')],
+    )
+
+
+core = engine_extension("line_odom_core._core", engine_sources + binding_sources)
+testing = engine_extension("line_odom_core._testing", engine_sources + shared_binding_sources + testing_sources)
 
 setup(
     name=PACKAGE,
     version=VERSION,
     packages=find_packages(include=["line_odom", "line_odom.*", "line_odom_core", "line_odom_core.*"]),
     package_data={"line_odom_core": ["py.typed", "*.pyi"], "line_odom": ["py.typed"]},
-    ext_modules=[core],
+    ext_modules=[core, testing],
     cmdclass={"build_ext": AtomicInplaceBuildExt},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),

@@ -9,7 +9,7 @@
 
 Stage times come from the engine's own stopwatch (stats["ms"]); "call" is the wall time of the Python call
 (numpy in, result out). The first frame of each run is left out (nothing to register against). KISS-ICP runs
-single-threaded by default (the goal is stated for one core), and so does line_odom (--threads sets its `threads`:
+single-threaded by default (the comparison is per core), and so does line_odom (--threads sets its `threads`:
 the line fit and the line-pair search on that many threads, feature stage times then in wall time instead of thread
 CPU time). KISS-ICP on several threads (--kiss-threads) leaves its TBB workers spinning between frames, which slows
 line_odom in the same process: time line_odom's threads without it. Timings on a shared machine are noisy: compare
@@ -17,10 +17,10 @@ the ratio within one run.
 
 At full resolution the presets fit and register the lines of every 4th row and column of a KITTI scan
 (registration.max_lines), each fitted to every point of its row or column. The row "all" runs the same frames with
-registration.max_lines = 0: every row and column fitted and registered. Its line-fitting time is the issue's "line
-fitting on a full KITTI frame". The "16b" row keeps every 4th of KITTI's 64 lasers with all their azimuth steps,
-through the vlp16 preset, as bench/accuracy.py's rows of that name (the 16-beam LiDAR this package is for; no goal in
-the issue): KISS-ICP gets the same points.
+registration.max_lines = 0: every row and column fitted and registered. Its line-fitting time is that of every
+line of a full KITTI frame (what the paper's "line fitting" time covers). The "16b" row keeps every 4th of KITTI's 64
+lasers with all their azimuth steps, through the vlp16 preset, as bench/accuracy.py's rows of that name (a 16-beam
+LiDAR as this package is for): KISS-ICP gets the same points.
 """
 from __future__ import annotations
 

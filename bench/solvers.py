@@ -17,7 +17,7 @@ import sys
 import sysconfig
 import tempfile
 
-from line_odom_core import _core
+from line_odom_core import _core, _testing
 
 # paper (Ranade et al. 2019, §7) and the authors' later public C++ (MIT, 2020) timed on this machine at -O3
 PAPER_US = {"1l2p": 0.64, "3l1p": 4.9, "7l": 22000.0}
@@ -35,7 +35,7 @@ def run(args):
         if method == "alternating_projection":
             kw["max_iterations"] = args.ap_max_iterations
         reps = args.repetitions if method != "alternating_projection" else max(1, min(args.repetitions, 3))
-        r = _core.benchmark_solver(solver, n, reps, args.seed, **kw)
+        r = _testing.benchmark_solver(solver, n, reps, args.seed, **kw)
         rows.append(r)
     return rows
 

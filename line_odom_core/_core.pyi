@@ -1,5 +1,5 @@
 """Type stubs of the C++ engine module line_odom_core._core (pybind11)."""
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -26,14 +26,6 @@ def solve_7l(segments_a: npt.ArrayLike, segments_b: npt.ArrayLike, init: npt.Arr
     """7L (paper 4): segments_a (7,2,3) meet T segments_b (7,2,3), from init (4,4) (None = identity).
     method: "gauss_newton" (default) or "alternating_projection" (the paper's). 0 or 1 poses (4,4)."""
 
-def benchmark_solver(solver: str, instances: int = 1000, repetitions: int = 5, seed: int = 0, *,
-                     method: str = "gauss_newton", max_iterations: int = 30000, tolerance: float = 1e-12,
-                     found_tolerance: float = 1e-6, guess_rotation_deg: float = 5.0, guess_translation: float = 0.5,
-                     max_translation: float = 2.0, scene_radius: float = 10.0, chunk: int = 0) -> dict[str, Any]:
-    """C++ timing loop over seeded noise-free instances of "1l2p", "3l1p" or "7l", timed in chunks of `chunk`
-    consecutive calls (0: auto). Keys: solver, method, instances, repetitions, median_us, p90_us, min_us, mean_us,
-    chunk, solutions_per_call, found_rate, no_solution_rate, median_error, p99_error, mean_iterations."""
-
 def estimate_motion(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, planes_a: npt.ArrayLike | None,
                     planes_b: npt.ArrayLike | None, *, segments_a: npt.ArrayLike | None = None,
                     segments_b: npt.ArrayLike | None = None, weights: npt.ArrayLike | None = None,
@@ -50,15 +42,6 @@ def estimate_motion(lines_a: npt.ArrayLike, lines_b: npt.ArrayLike, planes_a: np
     pushed 20 thresholds along 8 diagonals; success needs inlier_weight >= min_inlier_contrast * it
     + 3 sqrt(it)), dropped_line_pairs, dropped_plane_pairs,
     line_inlier_mask (N,), plane_inlier_mask (M,)."""
-
-def _ransac_fit_line_2d(points: npt.ArrayLike, threshold: float, *, weights: npt.ArrayLike | None = None,
-                        max_iterations: int = 1000, min_iterations: int = 0, confidence: float = 0.999,
-                        seed: int = 0, local_optimisation: bool = True
-                        ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
-def _ransac_translation_2d(points_a: npt.ArrayLike, points_b: npt.ArrayLike, directions: npt.ArrayLike,
-                           projections: npt.ArrayLike, threshold: float, *, max_iterations: int = 1000,
-                           min_iterations: int = 0, confidence: float = 0.999, seed: int = 0
-                           ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
 
 # ---- scan features ----
 
@@ -88,7 +71,8 @@ class FrameResult:
                               held (registration failed or was degenerate); "refine" when the refined guess won
       points: int             valid range-image cells after downsampling
       h_lines, v_lines: int   lines fitted along rows / columns
-      line_step: int          the lines of every line_step-th row and column were registered
+      fit_step: int           the lines were fitted on every fit_step-th row and column (line_selection.hpp)
+      line_step: int          of those, the lines of every line_step-th row and column were registered
                               (registration.max_lines; 1 = all)
       registered_lines: int   of those lines, how many entered the registration
       planes: int             planes fitted
@@ -124,11 +108,37 @@ class FrameResult:
                               picked near it support it 1.5 times as much
       window_scans: int       previous scans this frame was registered against: registration.window when the last
                               scan alone observed every direction of that motion, else 1 (0 on the first frame)
+      deskewed: bool          the points had times and were moved to the stamp at the predicted velocity
+      previous_deskewed_again: bool  ... and the previous scan, deskewed at another velocity, was again at this one
+                              (its features moved), so that both scans are corrected alike
+      deskewed_again: int     times the sweep was deskewed again at the motion registered for it and registered again
+                              (sensor.deskew_iterations)
       points_refined: bool    the point-to-plane refinement (points.*) moved the lines' estimate: this scan's voxel
                               means against the previous scan's voxel planes, jointly with the lines' estimate
       point_matches: int      ... this many voxel means had a planar partner
-      ms: dict[str, float]    per-stage milliseconds: organize, deskew, downsample, features (lines, normals,
-                              planes), candidates, ransac, points (the refinement and this scan's voxels), total
+      evidence: str           the points' verdict on the frame's motion (evidence.*): "agrees", "contradicted" (the
+                              points support another motion significantly more: the frame is flagged degenerate),
+                              "no_map" (too few points on the local map's planes to tell) or "off"
+      evidence_matches: int   this scan's checked points on a planar voxel of the local map, at the frame's motion
+      evidence_inliers: int   ... within evidence.inlier_distance of it
+      evidence_z: float       McNemar's z of the points' best motion over the lines' (above evidence.significance:
+                              the lines' motion is contradicted)
+      ms: dict[str, float]    milliseconds per stage, the keys below
+
+    stats["ms"] keys:
+      organize                organizing the scan into a range image (the deskew before the registration included)
+      deskew                  correcting both scans' sweeps (before the registration: part of organize; after it,
+                              at the registered motion: besides the other stages)
+      downsample              keeping every downsample-th row and column
+      features                lines, normals and planes, of which:
+      lines                   ... fitting the lines
+      normals                 ... the lines' normals and their clusters
+      planes                  ... fitting the planes
+      candidates              candidate line and plane pairs
+      ransac                  the hybrid RANSAC and its refinement
+      points                  the point-to-plane refinement and this scan's voxels
+      evidence                checking the motion against the local map and updating the map
+      total                   the whole frame
     """
 
     stamp: float
@@ -171,10 +181,11 @@ class Odometry:
     def frames(self) -> int: ...
     def settings(self) -> dict[str, bool | int | float | str]: ...
 
-def _motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence[bool] | None = None,
-                        dt: Sequence[float] | None = None
-                        ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each motion (test hook)
-def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...
+def reads_in_place(xyz: npt.NDArray[np.floating]) -> bool: ...  # register_points / register_organized copy nothing
+
+# Per-frame rotation conversions of the Python side (Eigen's).
+def rotation_vector(R: npt.ArrayLike) -> npt.NDArray[np.float64]: ...  # (3,) axis * angle, angle in [0, pi]
+def quaternion_xyzw(R: npt.ArrayLike) -> npt.NDArray[np.float64]: ...  # (4,) unit quaternion x, y, z, w with w >= 0
 
 # ---- settings (odometry/engine_settings.cpp) ----
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Incremental in-place build of line_odom_core._core for development: scripts/dev_build.sh [NAME]
+# Incremental in-place build of line_odom_core._core and ._testing for development: scripts/dev_build.sh [NAME]
 # NAME keeps a separate object directory (build/tmp_NAME) so parallel builds do not share objects.
 set -euo pipefail
 cd "$(dirname "$0")/.."

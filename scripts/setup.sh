@@ -128,7 +128,7 @@ mapfile -t engine_headers < <(find line_odom_core/cpp -type f \( -name '*.hpp' -
 mapfile -t engine_sources < <(find line_odom_core/cpp -type f -name '*.cpp' | LC_ALL=C sort)
 headers_fp="$(fingerprint setup.py "${engine_headers[@]}")"
 engine_fp="$(fingerprint setup.py "${engine_headers[@]}" "${engine_sources[@]}")"
-ext_present() { compgen -G "line_odom_core/_core.cpython-*.so" >/dev/null; }
+ext_present() { compgen -G "line_odom_core/_core.cpython-*.so" >/dev/null && compgen -G "line_odom_core/_testing.cpython-*.so" >/dev/null; }
 if ! stamp_ok package "$pkg_fp" || ! (cd / && "$PY" -c 'import line_odom' >/dev/null 2>&1); then
     say "installing line_odom (editable) and building the C++ engine (about a minute)"
     pip_quiet install --no-build-isolation --no-deps -e "$ROOT" || die "pip install -e . failed"
@@ -140,9 +140,9 @@ elif ! stamp_ok engine "$engine_fp" || ! ext_present; then
     # mtimes); the objects older than their .cpp or than any engine header are recompiled (build_support.py).
     headers_note=""
     stamp_ok headers "$headers_fp" || headers_note=" (headers changed: every object)"
-    say "engine sources changed: rebuilding line_odom_core._core${headers_note}"
+    say "engine sources changed: rebuilding line_odom_core._core and ._testing${headers_note}"
     "$PY" setup.py -q build_ext --inplace --force --build-temp build/tmp_setup --build-lib build/lib_setup \
-        || die "building line_odom_core._core failed"
+        || die "building line_odom_core._core and ._testing failed"
     stamp_set headers "$headers_fp"
     stamp_set engine "$engine_fp"
 fi

@@ -4,6 +4,7 @@ import textwrap
 import pytest
 
 import line_odom_core
+from line_odom_core import _testing
 from line_odom_core import config as cfg
 
 
@@ -124,7 +125,7 @@ def test_schema_entries_are_complete_and_defaults_valid():
 
 def test_schema_matches_the_engine_settings():
     """Every schema entry is a C++ setting with the same default, and the other way round."""
-    engine = line_odom_core._core.odometry_config_defaults()
+    engine = _testing.odometry_config_defaults()
     schema = {e.name: e.default for e in line_odom_core.config_schema()}
     assert set(engine) == set(schema)
     for name, default in schema.items():

@@ -1,6 +1,6 @@
 """The user documentation stays true to the repository: every repository path README.md and docs/*.md name exists,
-and no lab-notebook references ("session 12", "issue 4") or dated measurements sit in code, config or docs outside
-docs/RESULTS.md, whose tables carry their dates in provenance lines."""
+no lab-notebook references ("session 12", "issue 4") or dated measurements sit in code, config or docs outside
+docs/RESULTS.md, whose tables carry their dates in provenance lines, and the README stays short with its sections."""
 from __future__ import annotations
 
 import re
@@ -123,3 +123,17 @@ def test_every_results_table_has_a_provenance_line():
         assert re.search(r"`[^`]+`", text), f"{title!r}: the provenance names no command"
         assert re.search(r"\bcommit\s+[0-9a-f]{7,40}\b", text), f"{title!r}: the provenance names no commit"
         assert re.search(r"\b20[0-9]{2}-[01][0-9]-[0-3][0-9]\b", text), f"{title!r}: the provenance has no date"
+
+
+def test_the_readme_is_short_and_keeps_its_sections():
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 150, "README.md: at most about 150 lines; details belong in docs/"
+    sections = dict(re.findall(r"^## ([^\n]+)\n(.*?)(?=^## |\Z)", text, flags=re.MULTILINE | re.DOTALL))
+    for title in ("Two commands", "Running the node", "Replaying a bag", "On a ROS 2 Jazzy machine", "How well it works",
+                  "Documentation"):
+        assert title in sections, f"README.md lost its section {title!r}"
+    assert "make demo" in sections["Two commands"] and "make test" in sections["Two commands"]
+    assert "ros2 launch" in sections["On a ROS 2 Jazzy machine"]
+    results = sections["How well it works"]
+    assert "|---" in results and re.search(r"`\.venv/bin/python bench/\w+\.py", results), \
+        "the headline table and the command that produces it"

@@ -1,12 +1,12 @@
 """The prediction's per-axis persistence (motion_persistence.hpp, registration.persistence_window): the
 least-squares a in v(k+1) ~ a v(k) over the registered frames' velocities, clamped to [0, 1], through the engine's
-test hook, then end to end on TUM fr1/xyz (test_odometry_tum.py)."""
+testing module, then end to end on TUM fr1/xyz (test_odometry_tum.py)."""
 import numpy as np
 import pytest
 
 import line_odom_core
 from line_odom.datasets import tum_sequence
-from line_odom_core import _core
+from line_odom_core import _testing
 
 MIN_PAIRS = 10  # MotionPersistence::kMinPairs: constant velocity until then
 
@@ -22,7 +22,7 @@ def ar1(alpha, frames, seed=0, scale=1.0):
 
 @pytest.mark.parametrize("alpha", [0.3, 0.6, 0.9])
 def test_recovers_the_persistence_of_an_ar1_motion(alpha):
-    factors = _core._motion_persistence(ar1(alpha, 2000), 500)
+    factors = _testing.motion_persistence(ar1(alpha, 2000), 500)
     # 500-frame window: the least-squares estimate's standard error is ~sqrt((1 - a^2) / 500) < 0.045
     np.testing.assert_allclose(factors[-1], alpha, atol=0.12)
 
@@ -30,10 +30,10 @@ def test_recovers_the_persistence_of_an_ar1_motion(alpha):
 def test_steady_motion_is_predicted_in_full_and_an_alternating_one_not_at_all():
     steady = np.tile([1.2, 0.01, 0.0, 0.0, 0.0, 0.02], (60, 1))
     steady += np.random.default_rng(1).normal(scale=1e-4, size=steady.shape)
-    factors = _core._motion_persistence(steady, 90)
+    factors = _testing.motion_persistence(steady, 90)
     assert factors[-1][[0, 1, 5]].min() > 0.99, factors[-1]
     alternating = np.outer((-1.0) ** np.arange(60), np.ones(6))
-    np.testing.assert_array_equal(_core._motion_persistence(alternating, 90)[-1], np.zeros(6))
+    np.testing.assert_array_equal(_testing.motion_persistence(alternating, 90)[-1], np.zeros(6))
 
 
 def test_noisy_estimates_of_a_smooth_motion_are_shrunk_by_their_noise():
@@ -43,7 +43,7 @@ def test_noisy_estimates_of_a_smooth_motion_are_shrunk_by_their_noise():
     v = np.outer(np.sin(2 * np.pi * k / 300.0), np.ones(6))  # E[v^2] = 0.5
     noise = np.array([0.0, 0.05, 0.3, 0.7, 1.0, 2.0])
     z = v + np.random.default_rng(2).normal(size=v.shape) * noise
-    factors = _core._motion_persistence(z, 3000)[-1]
+    factors = _testing.motion_persistence(z, 3000)[-1]
     wiener = 0.5 / (0.5 + noise ** 2)
     np.testing.assert_allclose(factors, wiener, atol=0.05)
     assert np.all(np.diff(factors) < 0), factors
@@ -51,17 +51,17 @@ def test_noisy_estimates_of_a_smooth_motion_are_shrunk_by_their_noise():
 
 def test_constant_velocity_until_enough_consecutive_pairs():
     motions = ar1(-0.5, 30, seed=3)  # anti-persistent: every factor well under 1 once estimated
-    factors = _core._motion_persistence(motions, 90)
+    factors = _testing.motion_persistence(motions, 90)
     np.testing.assert_array_equal(factors[:MIN_PAIRS], np.ones((MIN_PAIRS, 6)))  # row i: after i pairs
     assert np.all(factors[MIN_PAIRS] < 1.0), factors[MIN_PAIRS]
     # a frame without a registration breaks the chain: the pairs around it are not counted
     registered = np.ones(30, dtype=bool)
     registered[5] = False
-    factors = _core._motion_persistence(motions, 90, registered.tolist())
+    factors = _testing.motion_persistence(motions, 90, registered.tolist())
     np.testing.assert_array_equal(factors[:MIN_PAIRS + 2], np.ones((MIN_PAIRS + 2, 6)))
     assert np.all(factors[MIN_PAIRS + 2] < 1.0)
     # window 0: off
-    np.testing.assert_array_equal(_core._motion_persistence(motions, 0), np.ones((30, 6)))
+    np.testing.assert_array_equal(_testing.motion_persistence(motions, 0), np.ones((30, 6)))
 
 
 def test_one_wild_frame_or_stamp_glitch_does_not_suppress_the_prediction():
@@ -69,14 +69,14 @@ def test_one_wild_frame_or_stamp_glitch_does_not_suppress_the_prediction():
     off by more than 5x (its motion / interval is wrong by that factor) breaks the chain instead of entering. Unclipped,
     the spike alone would hold every factor near 0.1 for hundreds of frames."""
     clean = ar1(0.9, 400, seed=5)
-    reference = _core._motion_persistence(clean, 90)
+    reference = _testing.motion_persistence(clean, 90)
     spiked = clean.copy()
     spiked[200] *= 100.0
-    factors = _core._motion_persistence(spiked, 90)
+    factors = _testing.motion_persistence(spiked, 90)
     np.testing.assert_allclose(factors[230], reference[230], atol=0.15)
     dt = np.ones(400)
     dt[250] = 1e-3  # the motion of a normal frame over a 1 ms "interval"
-    factors = _core._motion_persistence(clean, 90, dt=dt.tolist())
+    factors = _testing.motion_persistence(clean, 90, dt=dt.tolist())
     for k in (250, 251, 252):  # the glitch, the interval after it (5x off the glitch's), and the restart: no pairs
         np.testing.assert_array_equal(factors[k], factors[249])
     assert not np.array_equal(factors[253], factors[249])
@@ -85,7 +85,7 @@ def test_one_wild_frame_or_stamp_glitch_does_not_suppress_the_prediction():
     # velocities, not per-frame motions: steady motion at alternating 25 / 40 ms intervals persists in full
     intervals = np.where(np.arange(100) % 2 == 0, 0.025, 0.040)
     steady = np.outer(intervals, [0.5, 0.0, 0.0, 0.0, 0.0, 0.1])
-    assert _core._motion_persistence(steady, 90, dt=intervals.tolist())[-1][[0, 5]].min() > 0.999
+    assert _testing.motion_persistence(steady, 90, dt=intervals.tolist())[-1][[0, 5]].min() > 0.999
 
 
 def test_starting_to_move_after_standing_still_is_followed_within_a_second():
@@ -94,7 +94,7 @@ def test_starting_to_move_after_standing_still_is_followed_within_a_second():
     after 10 frames, 0.85 after 20, 0.96 after 30 (1 s at 30 Hz)."""
     z = np.random.default_rng(0).normal(scale=0.01, size=(300, 6))
     z[100:] += 1.0
-    factors = _core._motion_persistence(z, 90)
+    factors = _testing.motion_persistence(z, 90)
     assert factors[100].max() < 0.2, factors[100]
     assert factors[120].min() > 0.75 and factors[130].min() > 0.9, (factors[120], factors[130])
 
@@ -103,16 +103,16 @@ def test_non_finite_motions_and_bad_arguments():
     motions = ar1(0.5, 40, seed=4)
     motions[20] = np.nan
     motions[21, 3] = np.inf
-    factors = _core._motion_persistence(motions, 90)
+    factors = _testing.motion_persistence(motions, 90)
     assert np.all(np.isfinite(factors)) and np.all((factors >= 0.0) & (factors <= 1.0))
     still = np.zeros((20, 6))  # an axis that never moves keeps factor 1 (nothing to scale)
-    np.testing.assert_array_equal(_core._motion_persistence(still, 90)[-1], np.ones(6))
+    np.testing.assert_array_equal(_testing.motion_persistence(still, 90)[-1], np.ones(6))
     with pytest.raises(ValueError, match="window"):
-        _core._motion_persistence(motions, -1)
+        _testing.motion_persistence(motions, -1)
     with pytest.raises(ValueError, match="registered"):
-        _core._motion_persistence(motions, 90, [True] * 3)
+        _testing.motion_persistence(motions, 90, [True] * 3)
     with pytest.raises(ValueError, match="dt"):
-        _core._motion_persistence(motions, 90, dt=[0.1] * 3)
+        _testing.motion_persistence(motions, 90, dt=[0.1] * 3)
 
 
 def test_reset_forgets_the_persistence():

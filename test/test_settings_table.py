@@ -12,7 +12,7 @@ import pytest
 import line_odom_core
 from line_odom import docs_tables
 from line_odom.node_parameters import NODE_PARAMETER_NAMES, NODE_PARAMETERS, validate_node_value
-from line_odom_core import _core
+from line_odom_core import _core, _testing
 from line_odom_core import config as cfg
 
 ENGINE_ROWS = _core.settings_schema()
@@ -31,7 +31,7 @@ def test_the_python_schema_is_the_engine_table():
         assert entry.expected == row["expected"], entry.name  # the docs' and descriptors' words are the errors'
         assert type(entry.default) is entry.type, entry.name
         assert row["description"] and "\n" not in row["description"], entry.name
-    assert _core.odometry_config_defaults() == {e.name: e.default for e in schema}
+    assert _testing.odometry_config_defaults() == {e.name: e.default for e in schema}
 
 
 def test_an_engine_dumps_the_settings_it_was_given():

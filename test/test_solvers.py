@@ -3,7 +3,7 @@
 Ground truth: a random pose T_ab and an exact, noise-free minimal sample built from it (frame-a item = frame-b item
 moved by T_ab). Found = some returned pose within 1e-6 (max abs 4x4 entry) of the truth. Instances are generated
 here with numpy (an independent check of the conventions) and, for thousands of instances, by the C++ loop of
-benchmark_solver.
+_testing.benchmark_solver.
 """
 import threading
 import time
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import line_odom_core
-from line_odom_core import _core
+from line_odom_core import _testing
 
 FOUND = 1e-6
 
@@ -195,7 +195,7 @@ def test_integer_arrays_and_lists_are_accepted():
 
 @pytest.mark.parametrize("solver,n", [("1l2p", 20000), ("3l1p", 20000), ("7l", 3000)])
 def test_found_rate_over_thousands_of_instances(solver, n):
-    r = _core.benchmark_solver(solver, n, 1, 11)
+    r = _testing.benchmark_solver(solver, n, 1, 11)
     assert r["instances"] == n
     assert r["found_rate"] >= 0.99, r
     assert r["p99_error"] <= FOUND, r
@@ -203,8 +203,8 @@ def test_found_rate_over_thousands_of_instances(solver, n):
 
 
 def test_7l_both_methods_on_the_same_instances():
-    gn = _core.benchmark_solver("7l", 40, 1, 12, method="gauss_newton")
-    ap = _core.benchmark_solver("7l", 40, 1, 12, method="alternating_projection")
+    gn = _testing.benchmark_solver("7l", 40, 1, 12, method="gauss_newton")
+    ap = _testing.benchmark_solver("7l", 40, 1, 12, method="alternating_projection")
     assert gn["found_rate"] >= 0.99
     assert ap["found_rate"] >= 0.9 and ap["found_rate"] == ap["solutions_per_call"]  # returns only the truth
     assert gn["mean_iterations"] * 100 < ap["mean_iterations"]  # GN converges quadratically, AP linearly
@@ -212,17 +212,17 @@ def test_7l_both_methods_on_the_same_instances():
 
 
 def test_benchmark_is_deterministic_and_rejects_unknown_solvers():
-    a = _core.benchmark_solver("3l1p", 300, 1, 7)
-    b = _core.benchmark_solver("3l1p", 300, 1, 7)
+    a = _testing.benchmark_solver("3l1p", 300, 1, 7)
+    b = _testing.benchmark_solver("3l1p", 300, 1, 7)
     assert set(a) == {"solver", "method", "instances", "repetitions", "median_us", "p90_us", "min_us", "mean_us",
                       "chunk", "solutions_per_call", "found_rate", "no_solution_rate", "median_error", "p99_error",
                       "mean_iterations"}
     assert 0 < a["min_us"] <= a["median_us"] <= a["p90_us"]
     assert a["solutions_per_call"] == b["solutions_per_call"] and a["median_error"] == b["median_error"]
     with pytest.raises(ValueError, match="solver"):
-        _core.benchmark_solver("5p", 10, 1, 0)
+        _testing.benchmark_solver("5p", 10, 1, 0)
     with pytest.raises(ValueError, match="instances"):
-        _core.benchmark_solver("1l2p", 0, 1, 0)
+        _testing.benchmark_solver("1l2p", 0, 1, 0)
 
 
 # ---- degenerate inputs: no solution, never NaN ----
@@ -356,7 +356,7 @@ def test_heavy_calls_release_the_gil():
 
     def run():
         # fixed work: 2 x 5 x 20000 alternating-projection iterations (the tolerance is never reached)
-        _core.benchmark_solver("7l", 5, 1, 0, method="alternating_projection", tolerance=1e-300, max_iterations=20000)
+        _testing.benchmark_solver("7l", 5, 1, 0, method="alternating_projection", tolerance=1e-300, max_iterations=20000)
         done.set()
 
     worker = threading.Thread(target=run)

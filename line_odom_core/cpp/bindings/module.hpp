@@ -5,8 +5,8 @@
 
 namespace line_odom_bindings {
 
-void register_solvers(pybind11::module_& m);       // minimal solvers and their timing loop
-void register_registration(pybind11::module_& m);  // estimate_motion and the generic RANSAC's hooks
+void register_solvers(pybind11::module_& m);       // minimal solvers
+void register_registration(pybind11::module_& m);  // estimate_motion and its options
 void register_features(pybind11::module_& m);      // range images and features
 void register_odometry(pybind11::module_& m);      // the pipeline, its results and settings
 

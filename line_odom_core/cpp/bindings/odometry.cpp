@@ -330,30 +330,6 @@ void line_odom_bindings::register_odometry(py::module_& m) {
           return q.coeffs();  // Eigen stores x, y, z, w
         },
         py::arg("R"), "Unit quaternion [x, y, z, w] (w >= 0) of a 3x3 rotation matrix.");
-  m.def("_motion_persistence",
-        [](const Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor>& motions, int window,
-           const std::optional<std::vector<bool>>& registered, const std::optional<std::vector<double>>& dt) {
-          if (window < 0) throw py::value_error("window: expected >= 0 (frames)");
-          const auto rows = static_cast<std::size_t>(motions.rows());
-          if (registered && registered->size() != rows)
-            throw py::value_error("registered: expected one flag per row of motions");
-          if (dt && dt->size() != rows) throw py::value_error("dt: expected one stamp interval per row of motions");
-          line_odom::MotionPersistence persistence(window);
-          Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor> factors(motions.rows(), 6);
-          for (Eigen::Index i = 0; i < motions.rows(); ++i) {
-            if (!registered || (*registered)[i]) persistence.add(motions.row(i).transpose(), dt ? (*dt)[i] : 1.0);
-            else persistence.interrupt();
-            factors.row(i) = persistence.factors().transpose();
-          }
-          return factors;
-        },
-        py::arg("motions"), py::arg("window"), py::arg("registered") = py::none(), py::arg("dt") = py::none(),
-        "Test hook: MotionPersistence (motion_persistence.hpp) fed the motions (N, 6) (x y z rx ry rz) of frames in "
-        "order over their stamp intervals dt (default 1 s; registered[i] False: a frame without a registration); the "
-        "per-axis factors after each (N, 6).");
-  m.def("odometry_config_defaults",
-        []() { return py_settings::to_dict(line_odom::odometry_settings(), line_odom::OdometryConfig{}); },
-        "Every dotted engine setting with its default.");
   m.def("settings_schema", []() { return py_settings::schema_list(line_odom::odometry_settings().schema()); },
         "The engine settings' schema (odometry/engine_settings.cpp): one dict per setting with its name, type, "
         "default, range or choices, unit, description and whether a running node may change it.");

@@ -1,4 +1,4 @@
-// Bindings of the motion estimation (hybrid RANSAC and refinement, paper §6.3) and of the generic RANSAC's test hooks.
+// Bindings of the motion estimation (hybrid RANSAC and refinement, paper §6.3).
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -7,13 +7,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstdint>
 #include <string>
 #include <vector>
 
 #include "bindings/module.hpp"
 #include "bindings/settings.hpp"
-#include "bindings/ransac_examples.hpp"
 #include "bindings/types.hpp"
 #include "odometry/engine_settings.hpp"
 #include "registration/motion_estimation.hpp"
@@ -24,7 +22,6 @@ namespace motion_bindings {
 
 using py_types::mask_array;
 using py_types::matrix_array;
-using py_types::vector_array;
 
 // Row count of an (N, cols...) array argument; ValueError naming it and the expected shape otherwise.
 py::ssize_t leading_dim(const char* name, py::handle obj, const std::vector<py::ssize_t>& tail, const char* shape) {
@@ -148,85 +145,6 @@ py::tuple estimate_motion(py::handle lines_a, py::handle lines_b, py::handle pla
   return py::make_tuple(matrix_array(T.matrix()), s);
 }
 
-line_odom::RansacOptions ransac_options(int max_iterations, int min_iterations, double confidence, std::uint64_t seed,
-                                        bool local_optimisation) {
-  line_odom::RansacOptions o;
-  o.max_iterations = max_iterations;
-  o.min_iterations = min_iterations;
-  o.confidence = confidence;
-  o.seed = seed;
-  o.local_optimisation = local_optimisation;
-  return o;
-}
-
-py::dict ransac_stats(bool ok, const line_odom::RansacStats& st) {
-  py::dict d;
-  d["success"] = ok;
-  d["iterations"] = st.iterations;
-  d["models"] = st.models;
-  d["refinements"] = st.refinements;
-  d["best_solver"] = st.best_solver;
-  d["best_iteration"] = st.best_iteration;
-  d["score"] = ok ? st.best_score.value : 0.0;
-  d["inliers"] = st.best_score.inliers;
-  d["inlier_fraction"] = py::make_tuple(st.best_score.inlier_fraction[0], st.best_score.inlier_fraction[1]);
-  d["solver_iterations"] = py::make_tuple(st.solver_iterations[0], st.solver_iterations[1]);
-  d["solver_wins"] = py::make_tuple(st.solver_wins[0], st.solver_wins[1]);
-  return d;
-}
-
-std::vector<Eigen::Vector2d> points_2d(const char* fn, const char* name, py::handle obj) {
-  py::array arr = py::array::ensure(obj);
-  if (!arr || arr.ndim() != 2 || arr.shape(1) != 2)
-    throw py::value_error(std::string(fn) + ": " + name + " must be a real array of shape (N, 2)");
-  const auto a = py_types::as_float_array(fn, name, obj, {arr.shape(0), 2});
-  std::vector<Eigen::Vector2d> out(arr.shape(0));
-  for (size_t i = 0; i < out.size(); ++i) out[i] = Eigen::Vector2d(a.data()[2 * i], a.data()[2 * i + 1]);
-  return out;
-}
-
-std::vector<double> values_1d(const char* fn, const char* name, py::handle obj, py::ssize_t n) {
-  const auto a = py_types::as_float_array(fn, name, obj, {n});
-  return std::vector<double>(a.data(), a.data() + n);
-}
-
-py::tuple fit_line_2d(py::handle points, double threshold, py::handle weights, int max_iterations,
-                      int min_iterations, double confidence, std::uint64_t seed, bool local_optimisation) {
-  const auto p = points_2d("_ransac_fit_line_2d", "points", points);
-  const auto w = weights.is_none() ? std::vector<double>() : values_1d("_ransac_fit_line_2d", "weights", weights,
-                                                                       static_cast<py::ssize_t>(p.size()));
-  Eigen::Vector3d line = Eigen::Vector3d::Zero();
-  line_odom::RansacStats st;
-  bool ok;
-  {
-    py::gil_scoped_release release;
-    ok = line_odom::ransac_fit_line_2d(p, w, threshold,
-                                       ransac_options(max_iterations, min_iterations, confidence, seed, local_optimisation),
-                                       &line, &st);
-  }
-  return py::make_tuple(vector_array(line), ransac_stats(ok, st));
-}
-
-py::tuple translation_2d(py::handle points_a, py::handle points_b, py::handle directions, py::handle projections,
-                         double threshold, int max_iterations, int min_iterations, double confidence,
-                         std::uint64_t seed) {
-  const auto pa = points_2d("_ransac_translation_2d", "points_a", points_a);
-  const auto pb = points_2d("_ransac_translation_2d", "points_b", points_b);
-  if (pa.size() != pb.size()) throw py::value_error("_ransac_translation_2d: points_b must have the shape of points_a");
-  const auto u = points_2d("_ransac_translation_2d", "directions", directions);
-  const auto o = values_1d("_ransac_translation_2d", "projections", projections, static_cast<py::ssize_t>(u.size()));
-  Eigen::Vector2d t = Eigen::Vector2d::Zero();
-  line_odom::RansacStats st;
-  bool ok;
-  {
-    py::gil_scoped_release release;
-    ok = line_odom::ransac_translation_2d(pa, pb, u, o, threshold,
-                                          ransac_options(max_iterations, min_iterations, confidence, seed, false), &t,
-                                          &st);
-  }
-  return py::make_tuple(vector_array(t), ransac_stats(ok, st));
-}
-
 }  // namespace motion_bindings
 
 void line_odom_bindings::register_registration(py::module_& m) {
@@ -240,15 +158,4 @@ void line_odom_bindings::register_registration(py::module_& m) {
         "options: see estimate_motion_options().");
   m.def("estimate_motion_options", []() { return py_settings::schema_list(line_odom::motion_settings().schema()); },
         "The schema of estimate_motion's options (odometry/engine_settings.cpp), as settings_schema().");
-  m.def("_ransac_fit_line_2d", &motion_bindings::fit_line_2d, py::arg("points"), py::arg("threshold"),
-        py::kw_only(), py::arg("weights") = py::none(), py::arg("max_iterations") = 1000,
-        py::arg("min_iterations") = 0, py::arg("confidence") = 0.999, py::arg("seed") = 0,
-        py::arg("local_optimisation") = true,
-        "Test hook: the generic RANSAC (ransac.hpp) fitting a 2D line (a, b, c), a^2 + b^2 = 1, to points (N,2).");
-  m.def("_ransac_translation_2d", &motion_bindings::translation_2d, py::arg("points_a"), py::arg("points_b"),
-        py::arg("directions"), py::arg("projections"), py::arg("threshold"), py::kw_only(),
-        py::arg("max_iterations") = 1000, py::arg("min_iterations") = 0, py::arg("confidence") = 0.999,
-        py::arg("seed") = 0,
-        "Test hook: the hybrid RANSAC (ransac.hpp) estimating a 2D translation from point pairs (solver 0, one\n"
-        "pair) and scalar projections u.t = o (solver 1, two projections).");
 }

@@ -1,15 +1,13 @@
-// Bindings of the minimal solvers (paper §4, §5.1, §5.2) and of their C++ timing loop.
+// Bindings of the minimal solvers (paper §4, §5.1, §5.2).
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
 #include <array>
-#include <cstdint>
 #include <string>
 
 #include "bindings/module.hpp"
-#include "bindings/solver_benchmark.hpp"
 #include "bindings/types.hpp"
 #include "solvers/solve_1l2p.hpp"
 #include "solvers/solve_3l1p.hpp"
@@ -97,48 +95,6 @@ py::list solve_7l(py::handle segments_a, py::handle segments_b, py::handle init,
   return pose_list(&solution, count);
 }
 
-py::dict benchmark_solver(const std::string& solver, int instances, int repetitions, std::uint64_t seed,
-                          const std::string& method, int max_iterations, double tolerance, double found_tolerance,
-                          double guess_rotation_deg, double guess_translation, double max_translation,
-                          double scene_radius, int chunk) {
-  line_odom::SolverBenchmarkOptions o;
-  o.chunk = chunk;
-  o.solver = solver;
-  o.instances = instances;
-  o.repetitions = repetitions;
-  o.seed = seed;
-  o.solve_7l.method = method_7l(method);
-  o.solve_7l.max_iterations = max_iterations;
-  o.solve_7l.tolerance = tolerance;
-  o.found_tolerance = found_tolerance;
-  o.guess_rotation_deg = guess_rotation_deg;
-  o.guess_translation = guess_translation;
-  o.max_translation = max_translation;
-  o.scene_radius = scene_radius;
-  line_odom::SolverBenchmarkResult r;
-  {
-    py::gil_scoped_release release;
-    r = line_odom::benchmark_solver(o);
-  }
-  py::dict d;
-  d["solver"] = solver;
-  d["method"] = solver == "7l" ? method : std::string();
-  d["instances"] = r.instances;
-  d["repetitions"] = r.repetitions;
-  d["median_us"] = r.median_us;
-  d["min_us"] = r.min_us;
-  d["p90_us"] = r.p90_us;
-  d["mean_us"] = r.mean_us;
-  d["chunk"] = r.chunk;
-  d["solutions_per_call"] = r.solutions_per_call;
-  d["found_rate"] = r.found_rate;
-  d["no_solution_rate"] = r.no_solution_rate;
-  d["median_error"] = r.median_error;
-  d["p99_error"] = r.p99_error;
-  d["mean_iterations"] = r.mean_iterations;
-  return d;
-}
-
 }  // namespace solver_bindings
 
 void line_odom_bindings::register_solvers(py::module_& m) {
@@ -158,14 +114,4 @@ void line_odom_bindings::register_solvers(py::module_& m) {
         py::arg("max_residual") = line_odom::Solve7LOptions{}.max_residual,
         "7L solver (paper 4): segments_a[i] (7,2,3) meets T segments_b[i] (7,2,3), from init (4,4) (None = identity)\n"
         "by Gauss-Newton on SE(3) or by the paper's alternating projection. Returns a list of 0 or 1 poses T_ab.");
-  m.def("benchmark_solver", &solver_bindings::benchmark_solver, py::arg("solver"), py::arg("instances") = 1000,
-        py::arg("repetitions") = 5, py::arg("seed") = 0, py::kw_only(), py::arg("method") = "gauss_newton",
-        py::arg("max_iterations") = line_odom::Solve7LOptions{}.max_iterations,
-        py::arg("tolerance") = line_odom::Solve7LOptions{}.tolerance, py::arg("found_tolerance") = 1e-6,
-        py::arg("guess_rotation_deg") = 5.0, py::arg("guess_translation") = 0.5, py::arg("max_translation") = 2.0,
-        py::arg("scene_radius") = 10.0, py::arg("chunk") = 0,
-        "C++ timing loop over seeded noise-free instances of solver '1l2p', '3l1p' or '7l' (method for 7L), timed in\n"
-        "chunks of consecutive calls. Returns median_us/p90_us/min_us per call over the chunks, mean_us, chunk,\n"
-        "solutions_per_call, found_rate (a solution within found_tolerance of\n"
-        "the truth), no_solution_rate, median_error, p99_error, mean_iterations (7L).");
 }

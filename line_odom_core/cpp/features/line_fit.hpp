@@ -12,12 +12,17 @@
 // from the line of the middle half are trimmed; (5) lines with too few points, too short or with too large
 // an rms are dropped. Thresholds grow with range r by (1 + threshold_per_m r + threshold_per_m2 r^2) (LiDAR:
 // ~linear; depth cameras: ~quadratic).
+//
+// fit_scan_lines (line_fit.cpp) runs the rows and the columns in blocks, on worker threads; a scan line is gathered
+// by scan_line_buffer, its lines found by scan_line_fitter (steps 1-5) with the arithmetic of line_fit_kernels.hpp
+// and the least-squares fits of line_least_squares.
 #pragma once
 
 #include <cstdint>
 #include <vector>
 
 #include "common/scan_features.hpp"
+#include "features/line_least_squares.hpp"  // PointMoments, fit_line: the least-squares fits of the lines
 
 namespace line_odom {
 
@@ -52,40 +57,5 @@ class WorkerPool;
 // Rows and columns every scan_step-th; with a pool of several threads, in blocks on all of them (the same lines).
 ScanLines fit_scan_lines(const RangeImage& image, const LineFitConfig& config, int scan_step = 1,
                          WorkerPool* pool = nullptr);
-
-// Least-squares line through points: centroid, unit principal direction, rms of the orthogonal distances.
-struct LineLeastSquares {
-  Vec3 centroid = Vec3::Zero();
-  Vec3 direction = Vec3::UnitX();
-  double rms = 0.0;
-  int count = 0;
-};
-
-// Moment sums of a point set, mergeable: count, sum, sum of outer products.
-struct PointMoments {
-  int count = 0;
-  Vec3 sum = Vec3::Zero();
-  Mat3 outer = Mat3::Zero();
-
-  void add(const Vec3& p) {
-    ++count;
-    sum += p;
-    outer.noalias() += p * p.transpose();
-  }
-  void add(const PointMoments& o) {
-    count += o.count;
-    sum += o.sum;
-    outer += o.outer;
-  }
-  Vec3 mean() const { return count > 0 ? Vec3(sum / count) : Vec3::Zero(); }
-  Mat3 covariance() const;  // (1/n) sum (p - mean)(p - mean)^T
-};
-
-// Principal direction by power iteration: scan-line pieces are elongated (second / first eigenvalue ~1e-3),
-// so from a seed near the line (the chord) 3 iterations reach ~1e-9 rad, several times faster than the
-// closed-form 3x3 eigensolver (acos/cos). A set that is not elongated gets a slightly suboptimal direction
-// and hence a larger rms: it is rejected rather than accepted by mistake.
-LineLeastSquares fit_line(const PointMoments& moments, const Vec3& seed, int iterations = 3);
-LineLeastSquares fit_line(const PointMoments& moments);  // seed: the covariance column of largest variance
 
 }  // namespace line_odom

@@ -4,6 +4,10 @@
 // Rows are beams (row 0 = highest elevation) or pixel rows; columns are azimuth bins (LiDAR; column 0 is
 // straight behind the sensor, columns run clockwise seen from above, so the image reads left to right like
 // a panorama) or pixel columns. Holes (NaN/inf/zero/out-of-range points, empty cells) have valid = 0.
+//
+// Implemented in organize_points.cpp (unorganized clouds; their rows from point_rows, the per-point loops in
+// organize_kernels), depth_image.cpp (depth back-projection), range_image.cpp (organized clouds, downsampling) and
+// sensor_model (the presets).
 #pragma once
 
 #include <cstddef>
@@ -12,35 +16,17 @@
 #include <vector>
 
 #include "common/scan_features.hpp"
+#include "scan/sensor_model.hpp"
 
 namespace line_odom {
-
-// How an unorganized LiDAR cloud maps onto rows and columns.
-struct SensorModel {
-  std::string name;
-  int rows = 64;
-  int cols = 2048;
-  // Beam elevations in radians, one per row, strictly decreasing (row 0 = top beam); empty -> uniform
-  // spacing between max_elevation (row 0) and min_elevation (last row).
-  std::vector<double> beam_elevations;
-  double max_elevation = 0.0;
-  double min_elevation = 0.0;
-  // Points arrive ring by ring, each ring one azimuth revolution (KITTI .bin): a new ring starts where the
-  // azimuth, measured in [0, 2pi) from the +x axis, wraps around. Used only when it yields exactly `rows`
-  // rings, else elevation decides.
-  bool ring_order_from_azimuth_wrap = false;
-};
-
-// Presets: "hdl64" / "kitti" (Velodyne HDL-64E as in KITTI, beam table measured on the KITTI scans,
-// ring-by-ring order), "vlp16" (Velodyne VLP-16, +-15 deg, 1800 columns), "os128" (Ouster OS1-128,
-// +-22.5 deg uniform, 1024 columns). Throws std::invalid_argument for unknown names.
-SensorModel sensor_preset(const std::string& name);
-std::vector<std::string> sensor_preset_names();
 
 struct RangeLimits {
   double min_range = 0.0;    // metres; closer points are holes (LiDAR: distance, depth camera: depth z)
   double max_range = 1e9;    // metres; farther points are holes
 };
+
+// Throws std::invalid_argument unless 0 <= min_range < max_range.
+void validate_range_limits(const RangeLimits& limits);
 
 struct OrganizeStats {
   std::size_t input_points = 0;

@@ -1,4 +1,4 @@
-#include "bindings/ransac_examples.hpp"
+#include "testing/ransac_examples.hpp"
 
 #include <Eigen/Eigenvalues>
 #include <cmath>

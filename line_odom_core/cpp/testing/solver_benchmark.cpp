@@ -1,4 +1,4 @@
-#include "bindings/solver_benchmark.hpp"
+#include "testing/solver_benchmark.hpp"
 
 #include <algorithm>
 #include <array>

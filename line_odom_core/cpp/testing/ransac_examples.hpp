@@ -1,5 +1,5 @@
 // Two small estimators over ransac.hpp, so the RANSAC loop itself can be tested with known answers
-// (reached from Python through _core._ransac_fit_line_2d and _core._ransac_translation_2d):
+// (reached from Python through _testing.ransac_fit_line_2d and _testing.ransac_translation_2d):
 //   generic form: a 2D line a x + b y + c = 0 (a^2 + b^2 = 1) from weighted points, sample size 2;
 //   hybrid form:  a 2D translation t from two data types — point pairs (p_a = p_b + t) and scalar
 //                 projections (u_i . t = o_i) — with two solvers: {1 pair, 0 projections} and {0, 2}.

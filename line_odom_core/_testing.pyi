@@ -1,0 +1,31 @@
+"""Type stubs of line_odom_core._testing (pybind11): hooks for the tests and bench/solvers.py into engine parts that
+have no entry of their own in _core. The node never imports it."""
+from typing import Any, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+def benchmark_solver(solver: str, instances: int = 1000, repetitions: int = 5, seed: int = 0, *,
+                     method: str = "gauss_newton", max_iterations: int = 30000, tolerance: float = 1e-12,
+                     found_tolerance: float = 1e-6, guess_rotation_deg: float = 5.0, guess_translation: float = 0.5,
+                     max_translation: float = 2.0, scene_radius: float = 10.0, chunk: int = 0) -> dict[str, Any]:
+    """C++ timing loop over seeded noise-free instances of "1l2p", "3l1p" or "7l", timed in chunks of `chunk`
+    consecutive calls (0: auto). Keys: solver, method, instances, repetitions, median_us, p90_us, min_us, mean_us,
+    chunk, solutions_per_call, found_rate, no_solution_rate, median_error, p99_error, mean_iterations."""
+
+# The generic and the hybrid RANSAC (registration/ransac.hpp) on two small estimators with known answers
+# (testing/ransac_examples.hpp); stats: success, iterations, models, refinements, best_solver, best_iteration, score,
+# inliers, inlier_fraction, solver_iterations, solver_wins.
+def ransac_fit_line_2d(points: npt.ArrayLike, threshold: float, *, weights: npt.ArrayLike | None = None,
+                       max_iterations: int = 1000, min_iterations: int = 0, confidence: float = 0.999,
+                       seed: int = 0, local_optimisation: bool = True
+                       ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...  # line (a, b, c), a^2 + b^2 = 1
+def ransac_translation_2d(points_a: npt.ArrayLike, points_b: npt.ArrayLike, directions: npt.ArrayLike,
+                          projections: npt.ArrayLike, threshold: float, *, max_iterations: int = 1000,
+                          min_iterations: int = 0, confidence: float = 0.999, seed: int = 0
+                          ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...  # translation (2,)
+
+def motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence[bool] | None = None,
+                       dt: Sequence[float] | None = None
+                       ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each motion (motion_persistence.hpp)
+def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...  # OdometryConfig{}'s values, by name

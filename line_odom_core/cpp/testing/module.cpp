@@ -1,0 +1,203 @@
+// The module `_testing`: hooks for the tests and bench/solvers.py into engine parts that have no entry of their own
+// in `_core`. Built beside `_core` from the same engine sources (setup.py); nothing the node imports loads it.
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "bindings/settings.hpp"
+#include "bindings/types.hpp"
+#include "odometry/engine_settings.hpp"
+#include "odometry/motion_persistence.hpp"
+#include "odometry/odometry.hpp"
+#include "testing/ransac_examples.hpp"
+#include "testing/solver_benchmark.hpp"
+
+namespace py = pybind11;
+
+namespace {
+
+line_odom::Solve7LMethod method_7l(const std::string& method) {
+  if (method == "gauss_newton") return line_odom::Solve7LMethod::kGaussNewton;
+  if (method == "alternating_projection") return line_odom::Solve7LMethod::kAlternatingProjection;
+  throw py::value_error("method: expected 'gauss_newton' or 'alternating_projection', got '" + method + "'");
+}
+
+py::dict benchmark_solver(const std::string& solver, int instances, int repetitions, std::uint64_t seed,
+                          const std::string& method, int max_iterations, double tolerance, double found_tolerance,
+                          double guess_rotation_deg, double guess_translation, double max_translation,
+                          double scene_radius, int chunk) {
+  line_odom::SolverBenchmarkOptions o;
+  o.chunk = chunk;
+  o.solver = solver;
+  o.instances = instances;
+  o.repetitions = repetitions;
+  o.seed = seed;
+  o.solve_7l.method = method_7l(method);
+  o.solve_7l.max_iterations = max_iterations;
+  o.solve_7l.tolerance = tolerance;
+  o.found_tolerance = found_tolerance;
+  o.guess_rotation_deg = guess_rotation_deg;
+  o.guess_translation = guess_translation;
+  o.max_translation = max_translation;
+  o.scene_radius = scene_radius;
+  line_odom::SolverBenchmarkResult r;
+  {
+    py::gil_scoped_release release;
+    r = line_odom::benchmark_solver(o);
+  }
+  py::dict d;
+  d["solver"] = solver;
+  d["method"] = solver == "7l" ? method : std::string();
+  d["instances"] = r.instances;
+  d["repetitions"] = r.repetitions;
+  d["median_us"] = r.median_us;
+  d["min_us"] = r.min_us;
+  d["p90_us"] = r.p90_us;
+  d["mean_us"] = r.mean_us;
+  d["chunk"] = r.chunk;
+  d["solutions_per_call"] = r.solutions_per_call;
+  d["found_rate"] = r.found_rate;
+  d["no_solution_rate"] = r.no_solution_rate;
+  d["median_error"] = r.median_error;
+  d["p99_error"] = r.p99_error;
+  d["mean_iterations"] = r.mean_iterations;
+  return d;
+}
+
+line_odom::RansacOptions ransac_options(int max_iterations, int min_iterations, double confidence, std::uint64_t seed,
+                                        bool local_optimisation) {
+  line_odom::RansacOptions o;
+  o.max_iterations = max_iterations;
+  o.min_iterations = min_iterations;
+  o.confidence = confidence;
+  o.seed = seed;
+  o.local_optimisation = local_optimisation;
+  return o;
+}
+
+py::dict ransac_stats(bool ok, const line_odom::RansacStats& st) {
+  py::dict d;
+  d["success"] = ok;
+  d["iterations"] = st.iterations;
+  d["models"] = st.models;
+  d["refinements"] = st.refinements;
+  d["best_solver"] = st.best_solver;
+  d["best_iteration"] = st.best_iteration;
+  d["score"] = ok ? st.best_score.value : 0.0;
+  d["inliers"] = st.best_score.inliers;
+  d["inlier_fraction"] = py::make_tuple(st.best_score.inlier_fraction[0], st.best_score.inlier_fraction[1]);
+  d["solver_iterations"] = py::make_tuple(st.solver_iterations[0], st.solver_iterations[1]);
+  d["solver_wins"] = py::make_tuple(st.solver_wins[0], st.solver_wins[1]);
+  return d;
+}
+
+std::vector<Eigen::Vector2d> points_2d(const char* fn, const char* name, py::handle obj) {
+  py::array arr = py::array::ensure(obj);
+  if (!arr || arr.ndim() != 2 || arr.shape(1) != 2)
+    throw py::value_error(std::string(fn) + ": " + name + " must be a real array of shape (N, 2)");
+  const auto a = py_types::as_float_array(fn, name, obj, {arr.shape(0), 2});
+  std::vector<Eigen::Vector2d> out(arr.shape(0));
+  for (size_t i = 0; i < out.size(); ++i) out[i] = Eigen::Vector2d(a.data()[2 * i], a.data()[2 * i + 1]);
+  return out;
+}
+
+std::vector<double> values_1d(const char* fn, const char* name, py::handle obj, py::ssize_t n) {
+  const auto a = py_types::as_float_array(fn, name, obj, {n});
+  return std::vector<double>(a.data(), a.data() + n);
+}
+
+py::tuple ransac_fit_line_2d(py::handle points, double threshold, py::handle weights, int max_iterations,
+                             int min_iterations, double confidence, std::uint64_t seed, bool local_optimisation) {
+  const auto p = points_2d("ransac_fit_line_2d", "points", points);
+  const auto w = weights.is_none() ? std::vector<double>() : values_1d("ransac_fit_line_2d", "weights", weights,
+                                                                       static_cast<py::ssize_t>(p.size()));
+  Eigen::Vector3d line = Eigen::Vector3d::Zero();
+  line_odom::RansacStats st;
+  bool ok;
+  {
+    py::gil_scoped_release release;
+    ok = line_odom::ransac_fit_line_2d(p, w, threshold,
+                                       ransac_options(max_iterations, min_iterations, confidence, seed, local_optimisation),
+                                       &line, &st);
+  }
+  return py::make_tuple(py_types::vector_array(line), ransac_stats(ok, st));
+}
+
+py::tuple ransac_translation_2d(py::handle points_a, py::handle points_b, py::handle directions,
+                                py::handle projections, double threshold, int max_iterations, int min_iterations,
+                                double confidence, std::uint64_t seed) {
+  const auto pa = points_2d("ransac_translation_2d", "points_a", points_a);
+  const auto pb = points_2d("ransac_translation_2d", "points_b", points_b);
+  if (pa.size() != pb.size()) throw py::value_error("ransac_translation_2d: points_b must have the shape of points_a");
+  const auto u = points_2d("ransac_translation_2d", "directions", directions);
+  const auto o = values_1d("ransac_translation_2d", "projections", projections, static_cast<py::ssize_t>(u.size()));
+  Eigen::Vector2d t = Eigen::Vector2d::Zero();
+  line_odom::RansacStats st;
+  bool ok;
+  {
+    py::gil_scoped_release release;
+    ok = line_odom::ransac_translation_2d(pa, pb, u, o, threshold,
+                                          ransac_options(max_iterations, min_iterations, confidence, seed, false), &t,
+                                          &st);
+  }
+  return py::make_tuple(py_types::vector_array(t), ransac_stats(ok, st));
+}
+
+using Motions = Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor>;
+
+Motions motion_persistence(const Motions& motions, int window, const std::optional<std::vector<bool>>& registered,
+                           const std::optional<std::vector<double>>& dt) {
+  if (window < 0) throw py::value_error("window: expected >= 0 (frames)");
+  const auto rows = static_cast<std::size_t>(motions.rows());
+  if (registered && registered->size() != rows)
+    throw py::value_error("registered: expected one flag per row of motions");
+  if (dt && dt->size() != rows) throw py::value_error("dt: expected one stamp interval per row of motions");
+  line_odom::MotionPersistence persistence(window);
+  Motions factors(motions.rows(), 6);
+  for (Eigen::Index i = 0; i < motions.rows(); ++i) {
+    if (!registered || (*registered)[i]) persistence.add(motions.row(i).transpose(), dt ? (*dt)[i] : 1.0);
+    else persistence.interrupt();
+    factors.row(i) = persistence.factors().transpose();
+  }
+  return factors;
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_testing, m) {
+  m.doc() = "line_odom engine hooks for tests and benchmarks (not imported by the node)";
+  m.def("benchmark_solver", &benchmark_solver, py::arg("solver"), py::arg("instances") = 1000,
+        py::arg("repetitions") = 5, py::arg("seed") = 0, py::kw_only(), py::arg("method") = "gauss_newton",
+        py::arg("max_iterations") = line_odom::Solve7LOptions{}.max_iterations,
+        py::arg("tolerance") = line_odom::Solve7LOptions{}.tolerance, py::arg("found_tolerance") = 1e-6,
+        py::arg("guess_rotation_deg") = 5.0, py::arg("guess_translation") = 0.5, py::arg("max_translation") = 2.0,
+        py::arg("scene_radius") = 10.0, py::arg("chunk") = 0,
+        "C++ timing loop over seeded noise-free instances of solver '1l2p', '3l1p' or '7l' (method for 7L), timed in\n"
+        "chunks of consecutive calls. Returns median_us/p90_us/min_us per call over the chunks, mean_us, chunk,\n"
+        "solutions_per_call, found_rate (a solution within found_tolerance of\n"
+        "the truth), no_solution_rate, median_error, p99_error, mean_iterations (7L).");
+  m.def("ransac_fit_line_2d", &ransac_fit_line_2d, py::arg("points"), py::arg("threshold"), py::kw_only(),
+        py::arg("weights") = py::none(), py::arg("max_iterations") = 1000, py::arg("min_iterations") = 0,
+        py::arg("confidence") = 0.999, py::arg("seed") = 0, py::arg("local_optimisation") = true,
+        "The generic RANSAC (ransac.hpp) fitting a 2D line (a, b, c), a^2 + b^2 = 1, to points (N,2).");
+  m.def("ransac_translation_2d", &ransac_translation_2d, py::arg("points_a"), py::arg("points_b"),
+        py::arg("directions"), py::arg("projections"), py::arg("threshold"), py::kw_only(),
+        py::arg("max_iterations") = 1000, py::arg("min_iterations") = 0, py::arg("confidence") = 0.999,
+        py::arg("seed") = 0,
+        "The hybrid RANSAC (ransac.hpp) estimating a 2D translation from point pairs (solver 0, one\n"
+        "pair) and scalar projections u.t = o (solver 1, two projections).");
+  m.def("motion_persistence", &motion_persistence, py::arg("motions"), py::arg("window"),
+        py::arg("registered") = py::none(), py::arg("dt") = py::none(),
+        "MotionPersistence (motion_persistence.hpp) fed the motions (N, 6) (x y z rx ry rz) of frames in order over "
+        "their stamp intervals dt (default 1 s; registered[i] False: a frame without a registration); the per-axis "
+        "factors after each (N, 6).");
+  m.def("odometry_config_defaults",
+        []() { return py_settings::to_dict(line_odom::odometry_settings(), line_odom::OdometryConfig{}); },
+        "Every dotted engine setting with the default of its OdometryConfig member.");
+}
