@@ -67,8 +67,9 @@ class FrameResult:
 
     stats keys:
       solver: str             "7L", "3L1P" or "1L2P" (solver of the winning hypothesis); "none" on the first
-                              frame after construction/reset; "prediction" when the motion model's prediction was
-                              held (registration failed or was degenerate); "refine" when the refined guess won
+                              frame after construction/reset; "refine" when the refined guess won; "points" when the
+                              lines registered nothing and the point map's alignment was taken; "prediction" when the
+                              motion model's prediction was held
       points: int             valid range-image cells after downsampling
       h_lines, v_lines: int   lines fitted along rows / columns
       fit_step: int           the lines were fitted on every fit_step-th row and column (line_selection.hpp)
@@ -116,13 +117,13 @@ class FrameResult:
       points_refined: bool    the point-to-plane refinement (points.*) moved the lines' estimate: this scan's voxel
                               means against the previous scan's voxel planes, jointly with the lines' estimate
       point_matches: int      ... this many voxel means had a planar partner
-      evidence: str           the points' verdict on the frame's motion (evidence.*): "agrees", "contradicted" (the
-                              points support another motion significantly more: the frame is flagged degenerate),
-                              "no_map" (too few points on the local map's planes to tell) or "off"
-      evidence_matches: int   this scan's checked points on a planar voxel of the local map, at the frame's motion
-      evidence_inliers: int   ... within evidence.inlier_distance of it
-      evidence_z: float       McNemar's z of the points' best motion over the lines' (above evidence.significance:
-                              the lines' motion is contradicted)
+      observability: tuple    6 floats (x y z rx ry rz): McNemar's z of the lines meeting under the motion against
+                              the motion pushed validation.tolerance either way (0 where not tested)
+      unobserved: int         bit k: direction k of the motion not confirmed (the point map's alignment differs by
+                              more than validation.tolerance where it resolves the direction; without it, and at a
+                              first motion, McNemar's z under validation.significance): held at the alignment, flagged
+      points_aligned: bool    this scan's points were aligned to the point map (point_map.*)
+      point_map_matches: int  ... this many of them found a map point within the alignment's reach
       ms: dict[str, float]    milliseconds per stage, the keys below
 
     stats["ms"] keys:
@@ -137,7 +138,7 @@ class FrameResult:
       candidates              candidate line and plane pairs
       ransac                  the hybrid RANSAC and its refinement
       points                  the point-to-plane refinement and this scan's voxels
-      evidence                checking the motion against the local map and updating the map
+      validation              the lines' observability, aligning the points to the point map, adding this scan to it
       total                   the whole frame
     """
 

@@ -45,7 +45,6 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_cli.py": ("data",),
     "test_convert.py": ("data",),
     "test_eval.py": ("data",),
-    "test_evidence.py": ("data",),
     "test_features.py": ("data",),
     "test_input_layout.py": ("data",),
     "test_line_selection.py": ("data",),

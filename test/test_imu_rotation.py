@@ -329,7 +329,8 @@ def test_a_gyro_slightly_off_does_not_cost_the_first_motion_on_the_highway():
     """KITTI 04 at 1/64 (a highway: the hard first motion, docs/NODE.md "The first motion") from a gyro turn 0.05 deg
     off in yaw: searched from that turn alone the first motion was held at a standstill (1.31 m off, ill-conditioned;
     measured before the fallback), so the search from standing still runs too and its registration is taken: 0.009 m,
-    as without the gyro."""
+    as without the gyro (flagged as without it: the lines do not pin a highway's first forward motion down at 1/64,
+    validation.*)."""
     from line_odom.datasets import kitti_sequence
 
     data = kitti_sequence("04")
@@ -339,7 +340,8 @@ def test_a_gyro_slightly_off_does_not_cost_the_first_motion_on_the_highway():
     R = truth[:3, :3] @ Rotation.from_rotvec(np.radians([0.0, 0.0, 0.05])).as_matrix()
     res = odom.register_points(data.xyz(1), float(data.times[1]), rotation_guess=R)
     t_err, _ = degenerate.frame_error(res.delta, truth)
-    assert t_err < 0.05 and not res.degenerate and res.stats["prediction"] == "standing_still+imu", (t_err, res.stats)
+    assert t_err < 0.05 and res.stats["registered"] and res.stats["prediction"] == "standing_still+imu", (t_err,
+                                                                                                           res.stats)
 
 
 def _biased_gyro_drive(gain: float, frames: int = 80):

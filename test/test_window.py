@@ -53,7 +53,8 @@ def test_sixteen_lasers_on_the_highway_with_a_window_of_three_scans():
 
 
 def test_the_window_never_makes_the_sparse_highway_observable():
-    # KITTI 04 at 1/36: the forward motion is held at the prediction on 8 frames. Registered directly on the last
+    # KITTI 04 at 1/36: the forward motion is held at the prediction on 8 frames (and the first motion flagged: the
+    # lines do not pin it down, validation.*). Registered directly on the last
     # scans' lines, frame 2 came out as a confident 7L motion 0.049 m short and the held frames kept that velocity
     # (mean 0.049-0.062 m instead of 0.019). With the check on the previous scan's pairs alone every frame is the
     # frame-to-frame one, to the bit.
@@ -61,7 +62,7 @@ def test_the_window_never_makes_the_sparse_highway_observable():
     single, t_single, _ = run_kitti("04", 6, 1)
     assert [res.stats["window_scans"] for res in windowed[2:]] == [1] * (len(windowed) - 2)
     np.testing.assert_array_equal(np.array([res.pose for res in windowed]), np.array([res.pose for res in single]))
-    assert sum(res.degenerate for res in windowed) == 8 and t.mean() < 0.03, t
+    assert sum(res.degenerate for res in windowed) == 9 and t.mean() < 0.03, t
 
 
 def test_full_resolution_with_a_window_of_two_scans():

@@ -37,6 +37,10 @@ int resolved_axes(const Mat6& covariance, double tolerance, double lever) {
 
 
 
+bool judges(const ValidationFrame& frame, const RigidTransform* by_points) {
+  return by_points != nullptr && !frame.first_motion && frame.map_current;
+}
+
 }  // namespace
 
 Observability MotionValidation::observe(const ValidationFrame& frame, const PassOutcome& outcome,
@@ -57,9 +61,10 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
 int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
                                       const Observability& obs, const PointMapTracker& point_map,
                                       const RigidTransform* by_points, const Mat6& points_covariance) const {
-  // A first motion is judged by the lines alone: the map then holds one scan, whose sampling a sparse scan follows (its
-  // rings sit where that scan's rings sat when standing still), so its alignment leans to standing still.
-  if (by_points == nullptr || frame.first_motion) return obs.unobserved;
+  // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
+  // sit where that scan's rings sat when standing still), so its alignment leans to standing still. So they do after a
+  // frame whose pose was held: the map stayed where the held motion left it.
+  if (!judges(frame, by_points)) return obs.unobserved;
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
   // tolerance, the lines' motion is not taken; only where the points resolve the direction to a third of the
   // tolerance (along a corridor, or the street a car drives down, they may not: their motion there is no evidence).
@@ -128,7 +133,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   if (registered_in_full(*outcome) && open != 0) {
     // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion
     // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
-    const bool judged = aligned && !frame.first_motion;
+    const bool judged = judges(frame, aligned ? &by_points : nullptr);
     char why[160];
     std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
                   judged ? "the point map's alignment differs by more than validation.tolerance"

@@ -23,6 +23,8 @@ struct ValidationFrame {
   RigidTransform previous_pose;               // T_world_sensor of the previous scan
   RigidTransform prediction;
   bool first_motion = false;  // no velocity before this frame
+  bool map_current = false;   // the previous scan entered the point map: the map's place relative to this scan is
+                              // the prediction's, not a held motion's
   bool guessed = false;       // the prediction is a caller's measurement: open directions are held at it
   RegistrationFrame registration;
 };

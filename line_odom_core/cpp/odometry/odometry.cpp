@@ -130,6 +130,7 @@ void Odometry::reset(const RigidTransform& pose) {
   state_.previous_stamp = 0.0;
   state_.frames = 0;
   state_.last_inlier_weight = 0.0;
+  state_.map_current = false;
   state_.prediction.reset();
   state_.scans.clear();
   state_.sweeps.reset();
@@ -440,6 +441,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     check.previous_pose = s.pose;
     check.prediction = prediction;
     check.first_motion = first_motion;
+    check.map_current = s.map_current;
     check.guessed = guessed;
     check.registration = frame;
     const Validated validated = MotionValidation(lines_).validate(check, s.point_map, &outcome, &st);
@@ -492,13 +494,18 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     // The map holds scans at poses the scans measured: a frame whose pose was partly held stays out (built on, the
     // held motion would later be confirmed by itself). A sweep with point times enters only once deskewed at a known
     // velocity: before the first motion it is used as measured, smeared along the motion by up to a sweep's travel.
-    if (s.point_map.enabled() && !st.degenerate && (sweep == nullptr || !first_motion)) {
+    s.map_current = s.point_map.enabled() && st.registered && st.held_directions == 0 &&
+                    (sweep == nullptr || !first_motion);
+    if (s.map_current) {
       Stopwatch stage;
       s.point_map.add(scan.points, s.pose, prediction, result.delta);
       st.ms.validation += stage.ms();
     }
   }
-  if (s.frames == 0 && s.point_map.enabled() && sweep == nullptr) s.point_map.add(scan.points, s.pose, {}, {});
+  if (s.frames == 0) {
+    s.map_current = s.point_map.enabled() && sweep == nullptr;
+    if (s.map_current) s.point_map.add(scan.points, s.pose, {}, {});
+  }
   result.pose = s.pose;
 
   if (points_refining()) s.scans.previous_surface = std::move(scan.surface);
