@@ -14,7 +14,8 @@ namespace line_odom {
 
 struct PointAlignmentOptions {
   int max_iterations = 100;
-  double convergence = 1e-3;        // |step| (m, rad) under which the alignment has converged
+  double convergence = 5e-3;        // |step| (m, rad) under which the alignment has converged: a fraction of what
+                                    // validation.tolerance asks of it
   double initial_threshold = 2.0;   // m: the motion model's error assumed before any was measured
   double min_motion = 0.1;          // m: a frame moving less than this says nothing about the model's error
 };
