@@ -35,9 +35,15 @@ class EngineFrame:
         return getattr(engine, self.call)(*self.args, stamp, **self.keywords, **guess)
 
     def kept_points(self, engine, config) -> np.ndarray | None:
-        """The points the engine keeps of this frame (line_odom.scan_view), in the sensor frame."""
+        """The points the engine registered this frame with, in the sensor frame: its own copy (deskewed) when it kept
+        one (keep_points), else the kept points as line_odom.scan_view finds them."""
         from line_odom import scan_view
 
+        kept = getattr(engine, "last_points", None)
+        if kept is not None:
+            points = np.asarray(kept())
+            if len(points):
+                return points
         if self.call == "register_points":
             return scan_view.kept_unorganized(engine, self.args[0], self.keywords.get("ring"))
         if self.call == "register_organized":

@@ -397,6 +397,8 @@ class OdometryProcessor:
             guess, guess_pose = self.fusion.guess_delta(stamp_ns)
             rotation = self.fusion.imu_rotation(last, stamp_ns)
             try:
+                if hasattr(self.engine, "keep_points"):  # ~/scan shows the points as registered (deskewed)
+                    self.engine.keep_points(self.scan_wanted)
                 result = frame.register(self.engine, stamp, self.fusion.engine_guess(guess, rotation))
             except ValueError as err:
                 self._reject("frames_failed", f"registration rejected the frame: {err}")

@@ -1,6 +1,7 @@
-"""The scan the odometry registers, for rviz (``~/scan``): the points the engine keeps after organizing and
-downsampling (``downsample``: every n-th row and column; ``sensor.min_range``/``max_range``), in the sensor frame.
-They are the points before deskewing: the engine's Python API gives the kept points, not its deskewed copy."""
+"""The scan the odometry registers, for rviz (``~/scan``): the points the engine registered, after organizing,
+downsampling (``downsample``: every n-th row and column; ``sensor.min_range``/``max_range``) and deskewing, in the
+sensor frame (the engine's own copy, Odometry.last_points). For an engine without that copy: the kept points as found
+here, before deskewing."""
 from __future__ import annotations
 
 import numpy as np

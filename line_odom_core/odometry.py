@@ -256,6 +256,16 @@ class Odometry:
         h, v = self._engine.last_lines()
         return np.asarray(h), np.asarray(v)
 
+    def keep_points(self, keep: bool) -> None:
+        """While on, each frame keeps the points it was registered with, for last_points() (off by default: a copy per
+        frame only a view needs)."""
+        self._engine.keep_points(bool(keep))
+
+    def last_points(self) -> np.ndarray:
+        """The points the last frame was registered with: after organizing, downsampling and deskewing, (n, 3) in its
+        sensor frame; empty unless keep_points(True) was set before that frame."""
+        return np.asarray(self._engine.last_points())
+
     @property
     def frames(self) -> int:
         return self._engine.frames()

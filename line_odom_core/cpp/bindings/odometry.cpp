@@ -311,6 +311,20 @@ void line_odom_bindings::register_odometry(py::module_& m) {
           },
           "The H-lines and V-lines the last scan was registered with, as segments (n, 2, 3) in its sensor frame "
           "(deskewed, as registered).")
+      .def("keep_points", &Odometry::keep_points, py::arg("keep"),
+           "While on, each frame keeps the points it was registered with, for last_points() (off by default).")
+      .def(
+          "last_points",
+          [](const Odometry& o) {
+            const std::vector<line_odom::Vec3>& points = o.last_points();
+            py::array_t<double> out({static_cast<py::ssize_t>(points.size()), static_cast<py::ssize_t>(3)});
+            auto view = out.mutable_unchecked<2>();
+            for (std::size_t i = 0; i < points.size(); ++i)
+              for (int k = 0; k < 3; ++k) view(static_cast<py::ssize_t>(i), k) = points[i][k];
+            return out;
+          },
+          "The points the last frame was registered with (after organizing, downsampling and deskewing), (n, 3) in "
+          "its sensor frame; empty unless keep_points(True) was set before it.")
       .def("settings", [](const Odometry& o) { return py_settings::to_dict(line_odom::odometry_settings(), o.config()); });
   m.def("reads_in_place", [](const py::array& xyz) { return ob::in_place_stride(xyz) > 0; }, py::arg("xyz"),
         "Whether register_points / register_organized read these points without a copy.");

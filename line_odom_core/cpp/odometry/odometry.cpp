@@ -508,6 +508,12 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
   }
   result.pose = s.pose;
 
+  last_points_.clear();
+  if (keep_points_) {
+    const RangeImage& registered = *scan.input;
+    for (std::size_t i = 0; i < registered.points.size(); ++i)
+      if (registered.valid[i]) last_points_.push_back(registered.points[i]);
+  }
   if (points_refining()) s.scans.previous_surface = std::move(scan.surface);
   if (reg.window > 1) s.scans.window.push(scan.features, result.delta, st.registered && !st.degenerate);
   s.scans.previous = std::move(scan.features);

@@ -104,6 +104,10 @@ class Odometry {
   const RigidTransform& pose() const { return state_.pose; }
   int frames() const { return state_.frames; }
   const ScanFeatures& last_features() const { return state_.scans.previous; }
+  // While on, each frame keeps the points it was registered with (after organizing, downsampling and deskewing, in
+  // its sensor frame) for last_points(): a view's (rviz ~/scan), off by default.
+  void keep_points(bool keep) { keep_points_ = keep; }
+  const std::vector<Vec3>& last_points() const { return last_points_; }
 
  private:
   // register_range_image; `sweep` (nullable): the image's sweep times, deskewed at sweep->velocity (moved again by the
@@ -131,6 +135,8 @@ class Odometry {
   LineRegistration lines_;
   MotionSearch search_;
   OdometryState state_;
+  bool keep_points_ = false;
+  std::vector<Vec3> last_points_;
 };
 
 
