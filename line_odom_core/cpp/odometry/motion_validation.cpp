@@ -16,6 +16,7 @@ namespace {
 
 constexpr const char* kAxisNames[6] = {"x", "y", "z", "rx", "ry", "rz"};
 constexpr int kAllAxes = 0x3f;
+constexpr int kRotationAxes = 0x38;  // rx, ry, rz
 
 int count_axes(int axes) { return static_cast<int>(std::bitset<6>(static_cast<unsigned>(axes)).count()); }
 
@@ -124,6 +125,27 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
         st->candidates = other_stats.candidates;
         st->plane_candidates = other_stats.plane_candidates;
         st->passes = other_stats.passes;
+      }
+    }
+  }
+  if (aligned && outcome->have && outcome->held_directions > 0 && judges(frame, &by_points)) {
+    // The rotations the lines leave open are held at the point map's alignment, which measured this scan, rather than
+    // at the prediction, which only extrapolates the last frames (and kept a wrong turn rate along them), where the
+    // points resolve them. Not the translations: a sparse scan's alignment leans to the map's sampling, which is
+    // standing still's (open_directions).
+    Correspondences held_corr;
+    const Observability held_obs = observe(frame, *outcome, &held_corr);
+    const double tolerance = observability_push(outcome->best, lines_.config().validation);
+    const int turns = resolved_axes(points_covariance, tolerance, held_obs.lever) & kRotationAxes;
+    if (turns != 0) {
+      Vec6 xi = motion_difference(by_points, frame.prediction);
+      for (int k = 0; k < 6; ++k)
+        if (!(turns >> k & 1)) xi[k] = 0.0;
+      const RigidTransform turned = apply_motion_difference(xi, frame.prediction);
+      const Mat6 projector = outcome->held_projector;
+      if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
+        outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "turn held at the point map's alignment";
+        out.reference = turned;
       }
     }
   }

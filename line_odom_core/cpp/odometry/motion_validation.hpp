@@ -6,7 +6,8 @@
 // flagged with at least the fallback covariance there. Without the point map, and at a first motion (when the map holds
 // one scan), the lines' own test decides (each direction against the motion pushed either way, observability.hpp).
 // Where the lines registered nothing, or at a first motion they did not confirm, they register again from the points'
-// motion.
+// motion. Rotations the lines' refinement holds (too weakly constrained) are held at the points' rotation where the
+// points resolve it, not at the prediction's.
 #pragma once
 
 #include <vector>
