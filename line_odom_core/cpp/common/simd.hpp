@@ -28,6 +28,11 @@ namespace line_odom::simd {
 typedef double F4 __attribute__((vector_size(32)));
 typedef std::int64_t I4 __attribute__((vector_size(32)));
 constexpr int kLanes = 4;
+// Two lanes of doubles (one SSE2 register in either clone).
+typedef double F2 __attribute__((vector_size(16)));
+// Four lanes of floats and their compare masks (one SSE register in either clone).
+typedef float F4f __attribute__((vector_size(16)));
+typedef std::int32_t I4f __attribute__((vector_size(16)));
 
 inline __attribute__((always_inline)) F4 load4(const double* p) {
   F4 v;

@@ -69,7 +69,7 @@ PlaneEstimate pca_plane(const MomentSums& m) { return pca_plane(m.moments()); }
 // additions of pairs instead of six and nine scalar ones (GCC vector types: element-wise IEEE operations).
 class MomentLanes {
  public:
-  using Pair = double __attribute__((vector_size(16)));
+  using Pair = simd::F2;
 
   explicit MomentLanes(const MomentSums& m)
       : count_(m.count), sz_(m.sz), s_xy_{m.sx, m.sy}, xx_xy_{m.xx, m.xy}, xz_yz_{m.xz, m.yz}, yy_zz_{m.yy, m.zz} {}

@@ -196,8 +196,8 @@ double span_distance(const SegmentSpan& s1, const SegmentSpan& s2) {
   return ((s1.start + d1 * s) - (s2.start + d2 * t)).norm();
 }
 
-typedef float FloatLanes __attribute__((vector_size(16)));
-typedef int FloatLaneMask __attribute__((vector_size(16)));
+using FloatLanes = simd::F4f;
+using FloatLaneMask = simd::I4f;
 
 // Whether lanes x, y and z of a compare hold true.
 inline bool all_of_xyz(FloatLaneMask m) {
@@ -245,11 +245,9 @@ struct PartnerQuery {
   double min_cos_normals;  // |cos| of the largest angle between known normals
 };
 
-// Four lanes of doubles (GCC vector extensions: AVX2 registers in the avx2 clones, SSE2 pairs in the default ones).
 // (The helpers are always inlined: no vector crosses a call, whose ABI differs between the clones.)
-#pragma GCC diagnostic ignored "-Wpsabi"
-typedef double Lanes __attribute__((vector_size(32)));
-typedef long long LaneMask __attribute__((vector_size(32)));
+using Lanes = simd::F4;
+using LaneMask = simd::I4;
 
 inline __attribute__((always_inline)) Lanes lanes_at(const std::vector<double>& column, const int* ids) {
   const double* p = column.data();

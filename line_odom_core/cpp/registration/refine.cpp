@@ -34,9 +34,9 @@ struct NormalEquations {
   int plane_inliers = 0;
 };
 
-// Four running sums side by side (GCC / clang vector extension: element-wise IEEE operations, so each lane is the
-// scalar sum bit for bit; the lanes only let one instruction update several of the normal equations' sums).
-typedef double Lanes4 __attribute__((vector_size(32)));
+// Four running sums side by side (element-wise IEEE operations, so each lane is the scalar sum bit for bit; the lanes
+// only let one instruction update several of the normal equations' sums).
+using Lanes4 = simd::F4;
 
 // The line pairs' sums of NormalEquations in lanes: column c < 4 of H, rows 0..3, in h_col[c] (the rows above the
 // diagonal unused); rows 4, 5 of columns (0, 1), (2, 3), (4, 5) in h_rows45[0..2] as (4,c) (5,c) (4,c+1) (5,c+1);
