@@ -38,6 +38,25 @@ int resolved_axes(const Mat6& covariance, double tolerance, double lever) {
 
 
 
+// The translation axes along which the points' motion lies on the far side of standing still from the lines': a sparse
+// scan's alignment falls short of a motion (open_directions), it does not reverse it. `floor` is the lines' inlier
+// threshold, their noise: the lines' translation counts beyond three of it, the points' reversal beyond it and three
+// of their own standard deviations.
+int reversed_translation(const RigidTransform& lines, const RigidTransform& points, const Mat6& points_covariance,
+                         double floor) {
+  const double moved = lines.t.norm();
+  if (!(moved > 3.0 * floor)) return 0;
+  const Vec3 direction = lines.t / moved;
+  const double along = points.t.dot(direction);
+  const double sigma =
+      std::sqrt(std::max(0.0, direction.dot(points_covariance.topLeftCorner<3, 3>() * direction)));
+  if (!(along < -std::max(3.0 * sigma, floor))) return 0;
+  int axes = 0;
+  for (int k = 0; k < 3; ++k)
+    if (std::abs(lines.t[k]) > floor) axes |= 1 << k;
+  return axes;
+}
+
 bool judges(const ValidationFrame& frame, const RigidTransform* by_points) {
   return by_points != nullptr && !frame.first_motion && frame.map_current;
 }
@@ -59,25 +78,42 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
                             config.validation.significance);
 }
 
+int MotionValidation::reversed_axes(const ValidationFrame& frame, const PassOutcome& outcome,
+                                    const RigidTransform& by_points, const Mat6& points_covariance,
+                                    double lever) const {
+  if (!frame.map_current) return 0;
+  // Only along the axes the points resolve: on a highway they may not resolve the road's direction.
+  const double tolerance = observability_push(outcome.best, lines_.config().validation);
+  return reversed_translation(outcome.best, by_points, points_covariance, lines_.config().ransac.inlier_threshold) &
+         resolved_axes(points_covariance, tolerance, lever);
+}
+
 int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
                                       const Observability& obs, const PointMapTracker& point_map,
-                                      const RigidTransform* by_points, const Mat6& points_covariance) const {
+                                      const RigidTransform* by_points, const Mat6& points_covariance,
+                                      int* reversed) const {
+  *reversed = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. So they do after a
-  // frame whose pose was held: the map stayed where the held motion left it.
+  // frame whose pose was held at the prediction: the map stayed where the held motion left it.
   if (!judges(frame, by_points)) return obs.unobserved;
+  const double tolerance = observability_push(outcome.best, lines_.config().validation);
+  *reversed = reversed_axes(frame, outcome, *by_points, points_covariance, obs.lever);
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
   // tolerance, the lines' motion is not taken; only where the points resolve the direction to a third of the
   // tolerance (along a corridor, or the street a car drives down, they may not: their motion there is no evidence).
   const Vec6 difference = motion_difference(outcome.best, *by_points);
-  const double tolerance = observability_push(outcome.best, lines_.config().validation);
   const int resolved = resolved_axes(points_covariance, tolerance, obs.lever);
   int open = 0;
   for (int k = 0; k < 6; ++k)
     if ((resolved >> k & 1) && std::abs(difference[k]) * (k < 3 ? 1.0 : obs.lever) > tolerance) open |= 1 << k;
+  open |= *reversed;
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction), and the points confirm the lines.
-  if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) open = 0;
+  if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {
+    open = 0;
+    *reversed = 0;
+  }
   return open;
 }
 
@@ -100,9 +136,10 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   Correspondences corr;
   Observability obs;
   int open = kAllAxes;
+  int reversed = 0;
   if (registered_in_full(*outcome)) {
     obs = observe(frame, *outcome, &corr);
-    open = open_directions(frame, *outcome, obs, point_map, points, points_covariance);
+    open = open_directions(frame, *outcome, obs, point_map, points, points_covariance, &reversed);
   }
   if (aligned && open != 0 && (!registered_in_full(*outcome) || frame.first_motion)) {
     // The lines again from where the points put the scan: a first motion beyond the candidates' reach from standing
@@ -116,8 +153,11 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     if (registered_in_full(other)) {
       Correspondences other_corr;
       const Observability other_obs = observe(frame, other, &other_corr);
-      const int other_open = open_directions(frame, other, other_obs, point_map, points, points_covariance);
+      int other_reversed = 0;
+      const int other_open =
+          open_directions(frame, other, other_obs, point_map, points, points_covariance, &other_reversed);
       if (count_axes(other_open) < count_axes(open)) {
+        reversed = other_reversed;
         *outcome = std::move(other);
         corr = std::move(other_corr);
         obs = other_obs;
@@ -149,6 +189,12 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       }
     }
   }
+  if (aligned && frame.first_motion && registered_in_full(*outcome)) {
+    // A first motion the points put on the other side of standing still is flagged, its translation kept: the
+    // one-scan map's lean can reach past standing still (a highway's 1.3 m first motion aligned to -0.05 m).
+    reversed = reversed_axes(frame, *outcome, by_points, points_covariance, obs.lever);
+    open |= reversed;
+  }
   st->observability = obs.z;
   st->unobserved = registered_in_full(*outcome) ? open : 0;
 
@@ -158,8 +204,9 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     const bool judged = judges(frame, aligned ? &by_points : nullptr);
     char why[160];
     std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
-                  judged ? "the point map's alignment differs by more than validation.tolerance"
-                         : "McNemar z under validation.significance");
+                  (open & reversed) != 0 ? "the point map's alignment moves the other way"
+                  : judged               ? "the point map's alignment differs by more than validation.tolerance"
+                                         : "McNemar z under validation.significance");
     if (!judged && !frame.guessed) {
       outcome->failure = why;  // flagged: nothing better to hold (the prediction, or a one-scan map's alignment)
     } else if (aligned && open == kAllAxes) {
@@ -170,6 +217,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                lines_.hold_directions(corr, LinePairTable(corr), reference, open, nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
       out.reference = reference;
+      out.held_at_points = aligned && judged;
     } else {
       outcome->failure = why;
     }

@@ -33,6 +33,7 @@ struct ValidationFrame {
 struct Validated {
   RigidTransform reference;  // what the outcome's held directions (and a failed registration) take: the points'
                              // alignment where they were held at it or it was taken, else the prediction
+  bool held_at_points = false;  // the directions held were held at the point map's alignment, which measured them
 };
 
 class MotionValidation {
@@ -46,12 +47,16 @@ class MotionValidation {
  private:
   // McNemar's test of `outcome` on the last pass's candidates under its motion (filled into corr).
   Observability observe(const ValidationFrame& frame, const PassOutcome& outcome, Correspondences* corr) const;
+  // The translation axes (bits of xi) along which the points' motion lies on the other side of standing still from
+  // the lines' (reversed_translation), where the map holds the previous scan and the points resolve the axis.
+  int reversed_axes(const ValidationFrame& frame, const PassOutcome& outcome, const RigidTransform& by_points,
+                    const Mat6& points_covariance, double lever) const;
   // The directions (bits of xi) along which `outcome` is not confirmed: those the points' motion (nullable) puts
-  // farther than the tolerance, where they resolve it (points_covariance) and do not fit the lines' motion as well;
-  // without it, and at a first motion, those `obs` leaves open.
+  // farther than the tolerance, where they resolve it (points_covariance) and do not fit the lines' motion as well,
+  // and the reversed_axes (also into *reversed); without it, and at a first motion, those `obs` leaves open.
   int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
                       const PointMapTracker& point_map, const RigidTransform* by_points,
-                      const Mat6& points_covariance) const;
+                      const Mat6& points_covariance, int* reversed) const;
 
   const LineRegistration& lines_;
 };

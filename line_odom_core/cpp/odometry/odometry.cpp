@@ -491,10 +491,11 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
                         reg.constant_velocity);
     st.unmeasured_directions = static_cast<int>(std::lround(s.prediction.unmeasured_projector().trace()));
     s.sweeps.record_motion(result.delta, dt);
-    // The map holds scans at poses the scans measured: a frame whose pose was partly held stays out (built on, the
-    // held motion would later be confirmed by itself). A sweep with point times enters only once deskewed at a known
-    // velocity: before the first motion it is used as measured, smeared along the motion by up to a sweep's travel.
-    s.map_current = s.point_map.enabled() && st.registered && st.held_directions == 0 &&
+    // The map holds scans at poses the scans measured: a frame whose pose was partly held at the prediction stays out
+    // (built on, the held motion would later be confirmed by itself); held at the point map's alignment, the points
+    // measured it. A sweep with point times enters only once deskewed at a known velocity: before the first motion it
+    // is used as measured, smeared along the motion by up to a sweep's travel.
+    s.map_current = s.point_map.enabled() && st.registered && (st.held_directions == 0 || validated.held_at_points) &&
                     (sweep == nullptr || !first_motion);
     if (s.map_current) {
       Stopwatch stage;
