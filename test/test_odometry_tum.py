@@ -44,13 +44,15 @@ def test_sparse_1_100_frame_to_frame_error():
 def test_ill_conditioned_frames_hold_only_their_weak_directions():
     """Frames 258-271 of fr1/xyz at 1/100 are ill-conditioned (measured condition 9.4e-4 at 258, under
     ransac.degeneracy_threshold 1e-3). The preset (registration.partial_updates) holds one direction of each at the
-    prediction and registers the rest; held in full, the failure names the condition and the parameter."""
+    prediction and registers the rest; held in full, the failure names the condition and the parameter. (Frames the
+    point map's validation holds are another matter: test_validation.)"""
     data = tum_sequence(273)
     for partial in (True, False):
         config = line_odom_core.load_config("tum_kinect", {"downsample": 10, "registration.partial_updates": partial})
         odom = line_odom_core.Odometry(config)
         results = [odom.register_depth(data.depth(i), data.K, float(data.stamps[i])) for i in range(len(data))]
-        held = {i: r.stats["held_directions"] for i, r in enumerate(results) if r.stats["held_directions"] > 0}
+        held = {i: r.stats["held_directions"] for i, r in enumerate(results)
+                if r.stats["held_directions"] > 0 and "not confirmed" not in r.stats["failure"]}  # (not validation's)
         assert len(held) >= 5 and min(held) >= 250, held
         if partial:
             assert all(h < 6 for h in held.values()), held

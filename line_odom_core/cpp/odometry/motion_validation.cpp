@@ -81,7 +81,6 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
 int MotionValidation::reversed_axes(const ValidationFrame& frame, const PassOutcome& outcome,
                                     const RigidTransform& by_points, const Mat6& points_covariance,
                                     double lever) const {
-  if (!frame.map_current) return 0;
   // Only along the axes the points resolve: on a highway they may not resolve the road's direction.
   const double tolerance = observability_push(outcome.best, lines_.config().validation);
   return reversed_translation(outcome.best, by_points, points_covariance, lines_.config().ransac.inlier_threshold) &
@@ -188,12 +187,6 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
         out.reference = turned;
       }
     }
-  }
-  if (aligned && frame.first_motion && registered_in_full(*outcome)) {
-    // A first motion the points put on the other side of standing still is flagged, its translation kept: the
-    // one-scan map's lean can reach past standing still (a highway's 1.3 m first motion aligned to -0.05 m).
-    reversed = reversed_axes(frame, *outcome, by_points, points_covariance, obs.lever);
-    open |= reversed;
   }
   st->observability = obs.z;
   st->unobserved = registered_in_full(*outcome) ? open : 0;

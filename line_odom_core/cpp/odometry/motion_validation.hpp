@@ -48,7 +48,8 @@ class MotionValidation {
   // McNemar's test of `outcome` on the last pass's candidates under its motion (filled into corr).
   Observability observe(const ValidationFrame& frame, const PassOutcome& outcome, Correspondences* corr) const;
   // The translation axes (bits of xi) along which the points' motion lies on the other side of standing still from
-  // the lines' (reversed_translation), where the map holds the previous scan and the points resolve the axis.
+  // the lines' (reversed_translation), where the points resolve the axis (open_directions asks it where the map
+  // judges).
   int reversed_axes(const ValidationFrame& frame, const PassOutcome& outcome, const RigidTransform& by_points,
                     const Mat6& points_covariance, double lever) const;
   // The directions (bits of xi) along which `outcome` is not confirmed: those the points' motion (nullable) puts
