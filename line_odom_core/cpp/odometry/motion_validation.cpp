@@ -78,15 +78,6 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
                             config.validation.significance);
 }
 
-int MotionValidation::reversed_axes(const ValidationFrame& frame, const PassOutcome& outcome,
-                                    const RigidTransform& by_points, const Mat6& points_covariance,
-                                    double lever) const {
-  // Only along the axes the points resolve: on a highway they may not resolve the road's direction.
-  const double tolerance = observability_push(outcome.best, lines_.config().validation);
-  return reversed_translation(outcome.best, by_points, points_covariance, lines_.config().ransac.inlier_threshold) &
-         resolved_axes(points_covariance, tolerance, lever);
-}
-
 int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
                                       const Observability& obs, const PointMapTracker& point_map,
                                       const RigidTransform* by_points, const Mat6& points_covariance,
@@ -96,17 +87,19 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. So they do after a
   // frame whose pose was held at the prediction: the map stayed where the held motion left it.
   if (!judges(frame, by_points)) return obs.unobserved;
-  const double tolerance = observability_push(outcome.best, lines_.config().validation);
-  *reversed = reversed_axes(frame, outcome, *by_points, points_covariance, obs.lever);
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
-  // tolerance, the lines' motion is not taken; only where the points resolve the direction to a third of the
-  // tolerance (along a corridor, or the street a car drives down, they may not: their motion there is no evidence).
+  // tolerance, or on the other side of standing still (reversed_translation), the lines' motion is not taken; only
+  // where the points resolve the direction to a third of the tolerance (along a corridor, or the street a car drives
+  // down, they may not: their motion there is no evidence).
+  const double tolerance = observability_push(outcome.best, lines_.config().validation);
   const Vec6 difference = motion_difference(outcome.best, *by_points);
   const int resolved = resolved_axes(points_covariance, tolerance, obs.lever);
-  int open = 0;
+  *reversed = reversed_translation(outcome.best, *by_points, points_covariance,
+                                   lines_.config().ransac.inlier_threshold) &
+              resolved;
+  int open = *reversed;
   for (int k = 0; k < 6; ++k)
     if ((resolved >> k & 1) && std::abs(difference[k]) * (k < 3 ? 1.0 : obs.lever) > tolerance) open |= 1 << k;
-  open |= *reversed;
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction), and the points confirm the lines.
   if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {

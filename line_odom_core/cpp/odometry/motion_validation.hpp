@@ -47,14 +47,10 @@ class MotionValidation {
  private:
   // McNemar's test of `outcome` on the last pass's candidates under its motion (filled into corr).
   Observability observe(const ValidationFrame& frame, const PassOutcome& outcome, Correspondences* corr) const;
-  // The translation axes (bits of xi) along which the points' motion lies on the other side of standing still from
-  // the lines' (reversed_translation), where the points resolve the axis (open_directions asks it where the map
-  // judges).
-  int reversed_axes(const ValidationFrame& frame, const PassOutcome& outcome, const RigidTransform& by_points,
-                    const Mat6& points_covariance, double lever) const;
   // The directions (bits of xi) along which `outcome` is not confirmed: those the points' motion (nullable) puts
   // farther than the tolerance, where they resolve it (points_covariance) and do not fit the lines' motion as well,
-  // and the reversed_axes (also into *reversed); without it, and at a first motion, those `obs` leaves open.
+  // and the resolved translation axes along which they lie on the other side of standing still (also into
+  // *reversed); without it, and at a first motion, those `obs` leaves open.
   int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
                       const PointMapTracker& point_map, const RigidTransform* by_points,
                       const Mat6& points_covariance, int* reversed) const;
