@@ -11,8 +11,18 @@ namespace line_odom {
 
 namespace {
 constexpr std::uint64_t kEmpty = std::numeric_limits<std::uint64_t>::max();
-constexpr std::int64_t kBias = 1 << 20;  // 21 bits per axis: +-1 million voxels (+-10 km at points.voxel's 1 cm)
+constexpr std::int64_t kBias = 1 << 20;  // 21 bits per axis
 }  // namespace
+
+std::int64_t voxel_cell(double v, double voxel) {
+  constexpr double kFarthest = 1e15;
+  return static_cast<std::int64_t>(std::clamp(std::floor(v / voxel), -kFarthest, kFarthest));
+}
+
+std::uint64_t voxel_key(std::int64_t x, std::int64_t y, std::int64_t z) {
+  const auto field = [](std::int64_t c) { return static_cast<std::uint64_t>((c + kBias) & ((std::int64_t{1} << 21) - 1)); };
+  return field(x) << 42 | field(y) << 21 | field(z);
+}
 
 void VoxelTable::reset(std::size_t expected) {
   std::size_t capacity = 16;
@@ -63,12 +73,7 @@ std::int32_t VoxelTable::find(std::uint64_t key) const {
 }
 
 std::uint64_t SurfaceMap::key_of(const Vec3& p) const {
-  const auto field = [this](double v) {
-    constexpr double kFarthest = 1e15;  // cells: a cast beyond int64 would be undefined (points are finite, not bounded)
-    const auto cell = static_cast<std::int64_t>(std::clamp(std::floor(v / voxel_), -kFarthest, kFarthest));
-    return static_cast<std::uint64_t>((cell + kBias) & ((std::int64_t{1} << 21) - 1));
-  };
-  return field(p.x()) << 42 | field(p.y()) << 21 | field(p.z());
+  return voxel_key(voxel_cell(p.x(), voxel_), voxel_cell(p.y(), voxel_), voxel_cell(p.z(), voxel_));
 }
 
 void SurfaceMap::begin(double voxel, std::size_t expected) {

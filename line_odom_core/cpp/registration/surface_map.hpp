@@ -28,6 +28,12 @@ class VoxelTable {
   std::int32_t size_ = 0;
 };
 
+// The cell of coordinate `v` among cubes of `voxel` metres (clamped: a cast beyond int64 would be undefined; points
+// are finite, not bounded).
+std::int64_t voxel_cell(double v, double voxel);
+// A cell's key for VoxelTable: 21 bits per axis, +-1 million cells (+-10 km at points.voxel's 1 cm), wrapping beyond.
+std::uint64_t voxel_key(std::int64_t x, std::int64_t y, std::int64_t z);
+
 struct VoxelPlane {
   Vec3 normal = Vec3::Zero();
   bool planar = false;  // enough points, and flat: (l1 - l0) / l2 >= min_planarity of their scatter's eigenvalues

@@ -8,24 +8,6 @@
 
 namespace line_odom {
 
-namespace {
-
-constexpr std::int64_t kBias = 1 << 20;  // 21 bits per axis, as SurfaceMap's keys
-
-std::int64_t cell_of(double v, double voxel) {
-  constexpr double kFarthest = 1e15;  // a cast beyond int64 would be undefined
-  return static_cast<std::int64_t>(std::clamp(std::floor(v / voxel), -kFarthest, kFarthest));
-}
-
-std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
-  const auto field = [](std::int64_t c) { return static_cast<std::uint64_t>((c + kBias) & ((std::int64_t{1} << 21) - 1)); };
-  return field(x) << 42 | field(y) << 21 | field(z);
-}
-
-}  // namespace
-
-std::uint64_t VoxelPointMap::key(std::int64_t x, std::int64_t y, std::int64_t z) const { return pack(x, y, z); }
-
 void VoxelPointMap::clear() {
   table_ = VoxelTable{};
   voxels_.clear();
@@ -36,7 +18,7 @@ void VoxelPointMap::rebuild_table() {
   table_.reset(voxels_.size());
   for (std::size_t i = 0; i < voxels_.size(); ++i) {
     bool inserted = false;
-    table_.insert(key(voxels_[i].x, voxels_[i].y, voxels_[i].z), &inserted);
+    table_.insert(voxel_key(voxels_[i].x, voxels_[i].y, voxels_[i].z), &inserted);
   }
 }
 
@@ -45,9 +27,9 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
   for (const Vec3& p : points) {
     const Vec3 q = pose.apply(p);
     if (!q.allFinite()) continue;
-    const std::int64_t x = cell_of(q.x(), voxel_), y = cell_of(q.y(), voxel_), z = cell_of(q.z(), voxel_);
+    const std::int64_t x = voxel_cell(q.x(), voxel_), y = voxel_cell(q.y(), voxel_), z = voxel_cell(q.z(), voxel_);
     bool inserted = false;
-    const std::int32_t slot = table_.insert(key(x, y, z), &inserted);
+    const std::int32_t slot = table_.insert(voxel_key(x, y, z), &inserted);
     if (inserted) {
       voxels_.push_back(Voxel{x, y, z, static_cast<int>(points_.size()), 0});
       points_.resize(points_.size() + per_voxel_);
@@ -86,14 +68,14 @@ bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_po
   const Vec3 cell = q / voxel_;
   std::int64_t lo[3];
   for (int k = 0; k < 3; ++k)
-    lo[k] = cell_of(q[k], voxel_) - (near ? (cell[k] - std::floor(cell[k]) < 0.5 ? 1 : 0) : 1);
+    lo[k] = voxel_cell(q[k], voxel_) - (near ? (cell[k] - std::floor(cell[k]) < 0.5 ? 1 : 0) : 1);
   const std::int64_t span = near ? 1 : 2;
   double best = max_distance * max_distance;
   bool found = false;
   for (std::int64_t dx = 0; dx <= span; ++dx)
     for (std::int64_t dy = 0; dy <= span; ++dy)
       for (std::int64_t dz = 0; dz <= span; ++dz) {
-        const std::int32_t slot = table_.find(key(lo[0] + dx, lo[1] + dy, lo[2] + dz));
+        const std::int32_t slot = table_.find(voxel_key(lo[0] + dx, lo[1] + dy, lo[2] + dz));
         if (slot < 0) continue;
         const Voxel& v = voxels_[slot];
         for (int k = 0; k < v.count; ++k) {
@@ -147,7 +129,7 @@ std::vector<Vec3> voxel_downsample(const std::vector<Vec3>& points, double voxel
   for (const Vec3& p : points) {
     if (!p.allFinite()) continue;
     bool inserted = false;
-    table.insert(pack(cell_of(p.x(), voxel), cell_of(p.y(), voxel), cell_of(p.z(), voxel)), &inserted);
+    table.insert(voxel_key(voxel_cell(p.x(), voxel), voxel_cell(p.y(), voxel), voxel_cell(p.z(), voxel)), &inserted);
     if (inserted) out.push_back(p);
   }
   return out;

@@ -42,7 +42,6 @@ class VoxelPointMap {
     mutable bool planar = false;
     mutable Vec3 mean = Vec3::Zero(), normal = Vec3::Zero();
   };
-  std::uint64_t key(std::int64_t x, std::int64_t y, std::int64_t z) const;
   void rebuild_table();
 
   double voxel_ = 1.0;
