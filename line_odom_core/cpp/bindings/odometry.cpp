@@ -230,17 +230,20 @@ line_odom::FrameResult register_depth(line_odom::Odometry& o,
   }
 }
 
+// Points as an (n, 3) array.
+py::array_t<double> points_array(const std::vector<line_odom::Vec3>& points) {
+  py::array_t<double> out({static_cast<py::ssize_t>(points.size()), static_cast<py::ssize_t>(3)});
+  auto w = out.mutable_unchecked<2>();
+  for (py::ssize_t i = 0; i < static_cast<py::ssize_t>(points.size()); ++i)
+    for (py::ssize_t k = 0; k < 3; ++k) w(i, k) = points[i][k];
+  return out;
+}
+
 py::array_t<double> downsampled_points(const line_odom::Odometry& o, const py::array& xyz,
                                        const std::optional<py::array_t<std::int32_t>>& ring) {
-  const std::vector<line_odom::Vec3> pts =
-      on_cloud(CloudView(xyz, ring), [&](const auto* data, auto n, auto stride, auto rings) {
-        return o.downsampled_points(data, n, stride, rings);
-      });
-  py::array_t<double> out({static_cast<py::ssize_t>(pts.size()), static_cast<py::ssize_t>(3)});
-  auto w = out.mutable_unchecked<2>();
-  for (py::ssize_t i = 0; i < static_cast<py::ssize_t>(pts.size()); ++i)
-    for (py::ssize_t k = 0; k < 3; ++k) w(i, k) = pts[i][k];
-  return out;
+  return points_array(on_cloud(CloudView(xyz, ring), [&](const auto* data, auto n, auto stride, auto rings) {
+    return o.downsampled_points(data, n, stride, rings);
+  }));
 }
 
 py::dict sensor_fit(const line_odom::Odometry& o, const py::array& xyz,
@@ -314,15 +317,7 @@ void line_odom_bindings::register_odometry(py::module_& m) {
       .def("keep_points", &Odometry::keep_points, py::arg("keep"),
            "While on, each frame keeps the points it was registered with, for last_points() (off by default).")
       .def(
-          "last_points",
-          [](const Odometry& o) {
-            const std::vector<line_odom::Vec3>& points = o.last_points();
-            py::array_t<double> out({static_cast<py::ssize_t>(points.size()), static_cast<py::ssize_t>(3)});
-            auto view = out.mutable_unchecked<2>();
-            for (std::size_t i = 0; i < points.size(); ++i)
-              for (int k = 0; k < 3; ++k) view(static_cast<py::ssize_t>(i), k) = points[i][k];
-            return out;
-          },
+          "last_points", [](const Odometry& o) { return ob::points_array(o.last_points()); },
           "The points the last frame was registered with (after organizing, downsampling and deskewing), (n, 3) in "
           "its sensor frame; empty unless keep_points(True) was set before it.")
       .def("settings", [](const Odometry& o) { return py_settings::to_dict(line_odom::odometry_settings(), o.config()); });
