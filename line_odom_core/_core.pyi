@@ -124,6 +124,9 @@ class FrameResult:
                               first motion, McNemar's z under validation.significance): held at the alignment, flagged
       points_aligned: bool    this scan's points were aligned to the point map (point_map.*)
       point_map_matches: int  ... this many of them found a map point within the alignment's reach
+      map_entry: str          where the scan entered the point map: "pose" (its registered pose), "points" (its motion
+                              partly held at the prediction: where its points put it), "none" (stayed out: the map
+                              does not judge the next frame)
       ms: dict[str, float]    milliseconds per stage, the keys below
 
     stats["ms"] keys:

@@ -75,6 +75,7 @@ py::dict stats_dict(const line_odom::FrameStats& s) {
   d["unobserved"] = s.unobserved;
   d["points_aligned"] = s.points_aligned;
   d["point_map_matches"] = s.point_map_matches;
+  d["map_entry"] = s.map_entry;
   d["ms"] = ms;
   return d;
 }

@@ -74,6 +74,9 @@ struct FrameStats {
   int unobserved = 0;           // bit k: direction k not pinned down by the lines (z under validation.significance)
   bool points_aligned = false;  // the scan's points were aligned to the local map (point_map.*)
   int point_map_matches = 0;    // ... this many of them with a map point within the alignment's threshold
+  std::string map_entry = "none";  // where the scan entered the local map: "pose" (its registered pose), "points"
+                                   // (partly held at the prediction: where its points put it), "none" (stayed out: the
+                                   // map does not judge the next frame)
   StageMilliseconds ms;
 };
 

@@ -85,7 +85,7 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   *reversed = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. So they do after a
-  // frame whose pose was held at the prediction: the map stayed where the held motion left it.
+  // frame that stayed out of the map: its place on the map is not known.
   if (!judges(frame, by_points)) return obs.unobserved;
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
   // tolerance, or on the other side of standing still (reversed_translation), the lines' motion is not taken; only
@@ -211,8 +211,24 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "the point map's alignment taken";
     out.reference = by_points;
   }
+  if (judges(frame, aligned ? &by_points : nullptr)) {
+    out.judged = true;
+    out.by_points = by_points;
+    out.resolved = resolved_axes(points_covariance,
+                                 observability_push(outcome->have ? outcome->best : frame.prediction,
+                                                    lines_.config().validation),
+                                 obs.lever);
+  }
   st->ms.validation += watch.ms();
   return out;
+}
+
+RigidTransform place_on_map(const Validated& validated, const RigidTransform& previous_place,
+                            const RigidTransform& delta) {
+  Vec6 xi = motion_difference(validated.by_points, delta);
+  for (int k = 0; k < 6; ++k)
+    if (!(validated.resolved >> k & 1)) xi[k] = 0.0;
+  return previous_place * apply_motion_difference(xi, delta);
 }
 
 }  // namespace line_odom

@@ -21,11 +21,11 @@ struct ValidationFrame {
   const ScanFeatures* previous = nullptr;  // frame a of the registration
   ScanFeatures* current = nullptr;
   const std::vector<Vec3>* points = nullptr;  // this scan's, for the point map
-  RigidTransform previous_pose;               // T_world_sensor of the previous scan
+  RigidTransform previous_pose;               // of the previous scan on the point map (PointMapTracker::place_of)
   RigidTransform prediction;
   bool first_motion = false;  // no velocity before this frame
-  bool map_current = false;   // the previous scan entered the point map: the map's place relative to this scan is
-                              // the prediction's, not a held motion's
+  bool map_current = false;   // the previous scan entered the point map (PointMapTracker::placed): the map's place
+                              // relative to this scan is the prediction's
   bool guessed = false;       // the prediction is a caller's measurement: open directions are held at it
   RegistrationFrame registration;
 };
@@ -34,7 +34,17 @@ struct Validated {
   RigidTransform reference;  // what the outcome's held directions (and a failed registration) take: the points'
                              // alignment where they were held at it or it was taken, else the prediction
   bool held_at_points = false;  // the directions held were held at the point map's alignment, which measured them
+  // Where the map judged this frame: the points' motion from the previous scan's place and the axes along which they
+  // resolve it (a third of the tolerance).
+  bool judged = false;
+  RigidTransform by_points;
+  int resolved = 0;
 };
+
+// Where a judged frame whose motion was partly held at the prediction sits on the point map, from the previous scan's
+// `previous_place`: the points' motion along the axes they resolve, the frame's `delta` along the others.
+RigidTransform place_on_map(const Validated& validated, const RigidTransform& previous_place,
+                            const RigidTransform& delta);
 
 class MotionValidation {
  public:

@@ -130,7 +130,6 @@ void Odometry::reset(const RigidTransform& pose) {
   state_.previous_stamp = 0.0;
   state_.frames = 0;
   state_.last_inlier_weight = 0.0;
-  state_.map_current = false;
   state_.prediction.reset();
   state_.scans.clear();
   state_.sweeps.reset();
@@ -438,10 +437,10 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     check.previous = &s.scans.previous;
     check.current = &scan.features;
     check.points = &scan.points;
-    check.previous_pose = s.pose;
+    check.previous_pose = s.point_map.place_of(s.pose);
     check.prediction = prediction;
     check.first_motion = first_motion;
-    check.map_current = s.map_current;
+    check.map_current = s.point_map.holds_last_scan();
     check.guessed = guessed;
     check.registration = frame;
     const Validated validated = MotionValidation(lines_).validate(check, s.point_map, &outcome, &st);
@@ -491,21 +490,29 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
                         reg.constant_velocity);
     st.unmeasured_directions = static_cast<int>(std::lround(s.prediction.unmeasured_projector().trace()));
     s.sweeps.record_motion(result.delta, dt);
-    // The map holds scans at poses the scans measured: a frame whose pose was partly held at the prediction stays out
-    // (built on, the held motion would later be confirmed by itself); held at the point map's alignment, the points
-    // measured it. A sweep with point times enters only once deskewed at a known velocity: before the first motion it
-    // is used as measured, smeared along the motion by up to a sweep's travel.
-    s.map_current = s.point_map.enabled() && st.registered && (st.held_directions == 0 || validated.held_at_points) &&
-                    (sweep == nullptr || !first_motion);
-    if (s.map_current) {
+    // The map holds scans where the scans measured them: at the frame's pose when the lines registered it in full or
+    // it was held at the point map's alignment; a frame partly held at the prediction enters where its points put it,
+    // along the directions they resolve (built on at the held motion, that motion would later be confirmed by
+    // itself). A sweep with point times enters only once deskewed at a known velocity: before the first motion it is
+    // used as measured, smeared along the motion by up to a sweep's travel.
+    const bool at_pose = st.registered && (st.held_directions == 0 || validated.held_at_points);
+    if (s.point_map.enabled() && (at_pose || validated.judged) && (sweep == nullptr || !first_motion)) {
       Stopwatch stage;
+      if (!at_pose) s.point_map.reanchor(s.pose, place_on_map(validated, check.previous_pose, result.delta));
       s.point_map.add(scan.points, s.pose, prediction, result.delta);
+      st.map_entry = at_pose ? "pose" : "points";
       st.ms.validation += stage.ms();
+    } else {
+      s.point_map.leave_out();
     }
   }
   if (s.frames == 0) {
-    s.map_current = s.point_map.enabled() && sweep == nullptr;
-    if (s.map_current) s.point_map.add(scan.points, s.pose, {}, {});
+    if (sweep == nullptr && s.point_map.enabled()) {
+      s.point_map.add(scan.points, s.pose, {}, {});
+      st.map_entry = "pose";
+    } else {
+      s.point_map.leave_out();
+    }
   }
   result.pose = s.pose;
 

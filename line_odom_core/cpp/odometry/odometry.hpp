@@ -34,7 +34,6 @@ struct OdometryState {
   double previous_stamp = 0.0;
   int frames = 0;
   double last_inlier_weight = 0.0;  // of the last frame when it was registered in full (search_turn), else 0
-  bool map_current = false;         // the last frame's scan entered the point map
   MotionPrediction prediction;
   ScanHistory scans;
   SweepCorrection sweeps;

@@ -72,12 +72,15 @@ void PointMapTracker::add(const std::vector<Vec3>& points, const RigidTransform&
                           const RigidTransform& predicted, const RigidTransform& registered) {
   if (!options_.enabled) return;
   model_error_.add(predicted, registered);
-  map_.add(voxel_downsample(points, kMapVoxel * voxel_), pose, max_range_);
+  map_.add(voxel_downsample(points, kMapVoxel * voxel_), place_of(pose), max_range_);
+  holds_last_scan_ = true;
 }
 
 void PointMapTracker::reset() {
   map_.clear();
   model_error_.clear();
+  holds_last_scan_ = false;
+  map_from_odometry_ = RigidTransform::identity();
 }
 
 }  // namespace line_odom

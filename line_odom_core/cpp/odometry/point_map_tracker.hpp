@@ -1,6 +1,6 @@
 // The scan's points against the local map of the last scans' points (voxel_points.hpp, point_alignment.hpp), beyond
-// the paper: asked where the line intersections leave a direction of the motion open. Its own state: the map (in the
-// odometry frame) and how far the motion model has recently been off.
+// the paper: asked where the line intersections leave a direction of the motion open. Its own state: the map, where the
+// last scan sits on it, and how far the motion model has recently been off.
 #pragma once
 
 #include <vector>
@@ -18,6 +18,12 @@ class PointMapTracker {
 
   bool enabled() const { return options_.enabled; }
   bool ready() const { return options_.enabled && !map_.empty(); }
+  // Whether the last scan has a place on the map: it entered it. Without one, the map's place relative to the next
+  // scan is unknown.
+  bool holds_last_scan() const { return holds_last_scan_; }
+  // Where a scan at odometry pose `pose` sits on the map: the map is the odometry frame until a scan whose motion was
+  // partly held at the prediction enters where its points put it (reanchor).
+  RigidTransform place_of(const RigidTransform& pose) const { return map_from_odometry_ * pose; }
   // The motion T_prev_curr that aligns `points` (this scan, sensor frame) to the map, from `prediction` after the
   // previous scan at `previous_pose`; false when too few points found a map point.
   // `covariance` (nullable): of the motion, in its own chart (motion_difference; x y z rx ry rz of the previous frame).
@@ -26,9 +32,14 @@ class PointMapTracker {
   // Whether `points` fit the map at least as well at motion `a` as at `b` (point_cost; both after `previous_pose`).
   bool fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                     const RigidTransform& b) const;
-  // A frame done: its points at `pose`; `predicted` against `registered` tells the motion model's error.
+  // A frame done: its points at odometry pose `pose` (at place_of(pose) on the map); `predicted` against `registered`
+  // tells the motion model's error.
   void add(const std::vector<Vec3>& points, const RigidTransform& pose, const RigidTransform& predicted,
            const RigidTransform& registered);
+  // The scan at odometry pose `pose` sits at `place` on the map, and the scans after it relative to it.
+  void reanchor(const RigidTransform& pose, const RigidTransform& place) { map_from_odometry_ = place * pose.inverse(); }
+  // A frame that stays out of the map.
+  void leave_out() { holds_last_scan_ = false; }
   void reset();
 
  private:
@@ -37,6 +48,8 @@ class PointMapTracker {
   double voxel_;
   VoxelPointMap map_;
   MotionModelError model_error_;
+  bool holds_last_scan_ = false;
+  RigidTransform map_from_odometry_;
 };
 
 }  // namespace line_odom
