@@ -65,17 +65,33 @@ bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_po
   // Within a voxel, the 2 x 2 x 2 voxels around the voxel corner nearest q (exact within half a voxel of q, the nearest
   // of them farther); farther (an alignment's first steps from a poor guess), the 3 x 3 x 3 around q's voxel.
   const bool near = max_distance <= voxel_;
+  // Per axis the cells looked in, q's own first (the nearest point is most often there, and the cubes no nearer to q
+  // than it are then skipped).
   const Vec3 cell = q / voxel_;
-  std::int64_t lo[3];
-  for (int k = 0; k < 3; ++k)
-    lo[k] = voxel_cell(q[k], voxel_) - (near ? (cell[k] - std::floor(cell[k]) < 0.5 ? 1 : 0) : 1);
-  const std::int64_t span = near ? 1 : 2;
+  std::int64_t cells[3][3];
+  for (int k = 0; k < 3; ++k) {
+    const std::int64_t own = voxel_cell(q[k], voxel_);
+    cells[k][0] = own;
+    cells[k][1] = near ? own + (cell[k] - std::floor(cell[k]) < 0.5 ? -1 : 1) : own - 1;
+    cells[k][2] = own + 1;
+  }
+  const int count = near ? 2 : 3;
   double best = max_distance * max_distance;
   bool found = false;
-  for (std::int64_t dx = 0; dx <= span; ++dx)
-    for (std::int64_t dy = 0; dy <= span; ++dy)
-      for (std::int64_t dz = 0; dz <= span; ++dz) {
-        const std::int32_t slot = table_.find(voxel_key(lo[0] + dx, lo[1] + dy, lo[2] + dz));
+  // A cube no nearer to q than the nearest point so far holds no nearer one: not looked up.
+  auto gap = [&](int axis, std::int64_t c) {
+    constexpr double kRounding = 1e-9;  // m: the cube's edges computed apart from voxel_cell's floor
+    const double below = static_cast<double>(c) * voxel_ - q[axis], above = q[axis] - static_cast<double>(c + 1) * voxel_;
+    return std::max(0.0, std::max(below, above) - kRounding);
+  };
+  for (int ix = 0; ix < count; ++ix) {
+    const double gx = gap(0, cells[0][ix]);
+    for (int iy = 0; iy < count; ++iy) {
+      const double gy = gap(1, cells[1][iy]);
+      for (int iz = 0; iz < count; ++iz) {
+        const double gz = gap(2, cells[2][iz]);
+        if (gx * gx + gy * gy + gz * gz >= best) continue;
+        const std::int32_t slot = table_.find(voxel_key(cells[0][ix], cells[1][iy], cells[2][iz]));
         if (slot < 0) continue;
         const Voxel& v = voxels_[slot];
         for (int k = 0; k < v.count; ++k) {
@@ -88,6 +104,8 @@ bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_po
           }
         }
       }
+    }
+  }
   return found;
 }
 
