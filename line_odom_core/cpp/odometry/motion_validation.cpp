@@ -133,9 +133,11 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     obs = observe(frame, *outcome, &corr);
     open = open_directions(frame, *outcome, obs, point_map, points, points_covariance, &reversed);
   }
-  if (aligned && open != 0 && (!registered_in_full(*outcome) || frame.first_motion)) {
+  const bool partly_registered = outcome->have && outcome->held_directions > 0;
+  if (aligned && open != 0 && (frame.first_motion || (!registered_in_full(*outcome) && !partly_registered))) {
     // The lines again from where the points put the scan: a first motion beyond the candidates' reach from standing
-    // still, or a registration that failed from the prediction.
+    // still, or a registration that failed from the prediction (not one whose refinement held a direction the lines
+    // do not pin down: from another start they would not pin it down either).
     FrameStats other_stats;
     PassOutcome other = lines_.register_features(*frame.previous, *frame.current, frame.prediction, by_points, true,
                                                  frame.registration, &other_stats);
