@@ -29,3 +29,9 @@ def motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence
                        dt: Sequence[float] | None = None
                        ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each motion (motion_persistence.hpp)
 def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...  # OdometryConfig{}'s values, by name
+
+# The local point map's nearest-point lookup (registration/voxel_points.hpp) over points (N, 3) in cubes of `voxel`
+# metres: for each query (M, 3), the map point returned within max_distance (NaN rows where none) and its voxel's index
+# (-1 where none).
+def voxel_map_nearest(points: npt.ArrayLike, voxel: float, max_points_per_voxel: int, queries: npt.ArrayLike,
+                      max_distance: float) -> tuple[npt.NDArray[np.float64], list[int]]: ...

@@ -28,6 +28,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_static_tf.py": ("unit",),
     # the engine on synthetic inputs
     "test_estimate_motion.py": ("engine",),
+    "test_point_map.py": ("engine",),
     "test_fuzz_engine.py": ("engine",),
     "test_large_input.py": ("engine",),
     "test_node_processor.py": ("engine",),

@@ -6,6 +6,7 @@
 #include <pybind11/stl.h>
 
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -15,6 +16,7 @@
 #include "odometry/engine_settings.hpp"
 #include "odometry/motion_persistence.hpp"
 #include "odometry/odometry.hpp"
+#include "registration/voxel_points.hpp"
 #include "testing/ransac_examples.hpp"
 #include "testing/solver_benchmark.hpp"
 
@@ -168,6 +170,33 @@ Motions motion_persistence(const Motions& motions, int window, const std::option
   return factors;
 }
 
+using Points = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+
+// VoxelPointMap (voxel_points.hpp) holding `points` at the identity: for each query, the map point nearest() returns
+// within max_distance (NaN where none) and the index of its voxel (-1).
+py::tuple voxel_map_nearest(const Points& points, double voxel, int max_points_per_voxel, const Points& queries,
+                            double max_distance) {
+  if (!(voxel > 0.0)) throw py::value_error("voxel: expected > 0 (m)");
+  if (max_points_per_voxel < 1) throw py::value_error("max_points_per_voxel: expected >= 1");
+  line_odom::VoxelPointMap map(voxel, max_points_per_voxel);
+  std::vector<line_odom::Vec3> added(static_cast<std::size_t>(points.rows()));
+  for (Eigen::Index i = 0; i < points.rows(); ++i) added[static_cast<std::size_t>(i)] = points.row(i).transpose();
+  map.add(added, line_odom::RigidTransform::identity(), 1e9);
+  Points nearest(queries.rows(), 3);
+  std::vector<int> voxels(static_cast<std::size_t>(queries.rows()), -1);
+  for (Eigen::Index i = 0; i < queries.rows(); ++i) {
+    line_odom::Vec3 q = queries.row(i).transpose(), found;
+    int index = -1;
+    if (map.nearest(q, max_distance, &found, &index)) {
+      nearest.row(i) = found.transpose();
+      voxels[static_cast<std::size_t>(i)] = index;
+    } else {
+      nearest.row(i).setConstant(std::numeric_limits<double>::quiet_NaN());
+    }
+  }
+  return py::make_tuple(nearest, voxels);
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_testing, m) {
@@ -197,6 +226,10 @@ PYBIND11_MODULE(_testing, m) {
         "MotionPersistence (motion_persistence.hpp) fed the motions (N, 6) (x y z rx ry rz) of frames in order over "
         "their stamp intervals dt (default 1 s; registered[i] False: a frame without a registration); the per-axis "
         "factors after each (N, 6).");
+  m.def("voxel_map_nearest", &voxel_map_nearest, py::arg("points"), py::arg("voxel"), py::arg("max_points_per_voxel"),
+        py::arg("queries"), py::arg("max_distance"),
+        "The local point map's nearest-point lookup (voxel_points.hpp) over `points` (N, 3) in cubes of `voxel`: for each "
+        "query (M, 3), the map point returned within max_distance (NaN where none) and its voxel's index (-1).");
   m.def("odometry_config_defaults",
         []() { return py_settings::to_dict(line_odom::odometry_settings(), line_odom::OdometryConfig{}); },
         "Every dotted engine setting with the default of its OdometryConfig member.");
