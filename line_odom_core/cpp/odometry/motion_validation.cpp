@@ -57,8 +57,10 @@ int reversed_translation(const RigidTransform& lines, const RigidTransform& poin
   return axes;
 }
 
-bool judges(const ValidationFrame& frame, const RigidTransform* by_points) {
-  return by_points != nullptr && !frame.first_motion && frame.map_current;
+// The map judges a frame from its points' alignment when the previous scan entered the map (its place relative to
+// this scan is then known) and the frame is not a first motion.
+bool judges(const ValidationFrame& frame, const PointMapTracker& point_map, const RigidTransform* by_points) {
+  return by_points != nullptr && !frame.first_motion && point_map.holds_last_scan();
 }
 
 }  // namespace
@@ -86,7 +88,7 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. So they do after a
   // frame that stayed out of the map: its place on the map is not known.
-  if (!judges(frame, by_points)) return obs.unobserved;
+  if (!judges(frame, point_map, by_points)) return obs.unobserved;
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
   // tolerance, or on the other side of standing still (reversed_translation), the lines' motion is not taken; only
   // where the points resolve the direction to a third of the tolerance (along a corridor, or the street a car drives
@@ -123,6 +125,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   st->points_aligned = aligned;
   st->point_map_matches = matched;
   const RigidTransform* points = aligned ? &by_points : nullptr;
+  const bool judged = judges(frame, point_map, points);
   const RigidTransform reference = aligned ? by_points : frame.prediction;  // what open directions are held at
 
   Correspondences corr;
@@ -162,7 +165,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       }
     }
   }
-  if (aligned && outcome->have && outcome->held_directions > 0 && judges(frame, &by_points)) {
+  if (judged && outcome->have && outcome->held_directions > 0) {
     // The rotations the lines leave open are held at the point map's alignment, which measured this scan, rather than
     // at the prediction, which only extrapolates the last frames (and kept a wrong turn rate along them), where the
     // points resolve them. Not the translations: a sparse scan's alignment leans to the map's sampling, which is
@@ -189,7 +192,6 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   if (registered_in_full(*outcome) && open != 0) {
     // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion
     // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
-    const bool judged = judges(frame, aligned ? &by_points : nullptr);
     char why[160];
     std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
                   (open & reversed) != 0 ? "the point map's alignment moves the other way"
@@ -205,7 +207,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                lines_.hold_directions(corr, LinePairTable(corr), reference, open, nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
       out.reference = reference;
-      out.held_at_points = aligned && judged;
+      out.held_at_points = judged;
     } else {
       outcome->failure = why;
     }
@@ -213,7 +215,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "the point map's alignment taken";
     out.reference = by_points;
   }
-  if (judges(frame, aligned ? &by_points : nullptr)) {
+  if (judged) {
     out.judged = true;
     out.by_points = by_points;
     out.resolved = resolved_axes(points_covariance,

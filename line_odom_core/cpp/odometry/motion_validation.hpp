@@ -24,8 +24,6 @@ struct ValidationFrame {
   RigidTransform previous_pose;               // of the previous scan on the point map (PointMapTracker::place_of)
   RigidTransform prediction;
   bool first_motion = false;  // no velocity before this frame
-  bool map_current = false;   // the previous scan entered the point map (PointMapTracker::placed): the map's place
-                              // relative to this scan is the prediction's
   bool guessed = false;       // the prediction is a caller's measurement: open directions are held at it
   RegistrationFrame registration;
 };

@@ -440,7 +440,6 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     check.previous_pose = s.point_map.place_of(s.pose);
     check.prediction = prediction;
     check.first_motion = first_motion;
-    check.map_current = s.point_map.holds_last_scan();
     check.guessed = guessed;
     check.registration = frame;
     const Validated validated = MotionValidation(lines_).validate(check, s.point_map, &outcome, &st);
@@ -510,8 +509,6 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     if (sweep == nullptr && s.point_map.enabled()) {
       s.point_map.add(scan.points, s.pose, {}, {});
       st.map_entry = "pose";
-    } else {
-      s.point_map.leave_out();
     }
   }
   result.pose = s.pose;
