@@ -59,22 +59,43 @@ def test_stop_and_go_at_full_resolution_no_frame_more_than_the_gross_bound_off()
     assert t.max() < GROSS, np.round(t, 3)
 
 
-@pytest.mark.parametrize("level, mean_bound, from_frame", [("1/36", 0.045, 0), ("1/64", 0.06, 0),
-                                                          ("16 lasers", 0.035, 10)])
-def test_stop_and_go_a_wrong_velocity_does_not_persist(level, mean_bound, from_frame):
+@pytest.mark.parametrize("level, mean_bound", [("1/36", 0.045), ("1/64", 0.06), ("16 lasers", 0.035)])
+def test_stop_and_go_a_wrong_velocity_does_not_persist(level, mean_bound):
     """The 78-scan drive slowing to a stop, against its dense reference. The sparse lines locked onto a backward motion
     from the first scans on and kept it for ~50 scans, every scan reported as good (1/36 0.197 m a frame, 1/64 0.238,
-    16 lasers 0.167). Now the drive goes forwards; at 1/36 and 1/64 no frame more than the gross bound off is reported
-    as a good registration, with 16 lasers none past the first ten scans (its first motion still is:
-    docs/RESULTS.md)."""
+    16 lasers 0.167). Now the drive goes forwards, and no frame more than the gross bound off is reported as a good
+    registration."""
     data = stop_and_go()
     poses, stats, t, _ = run(data, level)
     reference = data.poses[-1][:3, 3] - data.poses[0][:3, 3]
     assert np.dot(poses[-1][:3, 3] - poses[0][:3, 3], reference) > 0.5 * np.dot(reference, reference) ** 0.5
     assert t.mean() < mean_bound, t.mean()
     flagged = np.array([s["degenerate"] for s in stats[1:]])
-    unflagged_gross = np.flatnonzero(gross(t, data) & ~flagged) + 1
-    assert (unflagged_gross > from_frame).sum() == 0, (unflagged_gross, np.round(t, 3))
+    assert not (gross(t, data) & ~flagged).any(), np.round(t, 3)
+
+
+def test_a_first_motion_the_points_put_the_other_way_is_held_at_their_alignment():
+    """With 16 lasers the lines' first motion is mirrored (-0.26 m where the car moves +0.10 m) and their own test
+    confirms it. The one-scan map's alignment leans to standing still but stays forwards: the lines' motion is on the
+    other side of standing still, so it is not taken. It is held at the points' motion and flagged."""
+    data = stop_and_go(3)
+    _, stats, t, results = run(data, "16 lasers")
+    first = results[1]
+    assert "moves the other way" in first.stats["failure"], first.stats["failure"]
+    assert "held at the point map's alignment" in first.stats["failure"]
+    assert first.degenerate and first.stats["unobserved"] & 1 and first.stats["points_aligned"]
+    assert t[0] < 0.1, np.round(t, 3)
+    assert results[1].pose[0, 3] > 0.0
+
+
+def test_a_first_motion_the_points_fall_short_of_is_taken():
+    """KITTI 04 starts mid-drive, 1.3 m a scan: a sparse scan's alignment on the one-scan map falls short of that (its
+    rings sit where the map's rings sat when standing still), but on the same side of standing still: the lines'
+    first motion stands, unflagged."""
+    data = kitti_sequence("04", 2)
+    _, stats, t, _ = run(data, "16 lasers")
+    assert not stats[1]["degenerate"], stats[1]["failure"]
+    assert t[0] < 0.05, np.round(t, 3)
 
 
 def test_a_translation_the_points_put_the_other_way_is_not_confirmed():

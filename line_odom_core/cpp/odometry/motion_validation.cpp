@@ -86,9 +86,11 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
                                       int* reversed) const {
   *reversed = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
-  // sit where that scan's rings sat when standing still), so its alignment leans to standing still. So they do after a
-  // frame that stayed out of the map: its place on the map is not known.
-  if (!judges(frame, point_map, by_points)) return obs.unobserved;
+  // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
+  // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
+  // is not taken. The lines alone judge after a frame that stayed out of the map: its place on the map is not known.
+  const bool judged = judges(frame, point_map, by_points);
+  if (!judged && !(frame.first_motion && by_points != nullptr && point_map.holds_last_scan())) return obs.unobserved;
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
   // tolerance, or on the other side of standing still (reversed_translation), the lines' motion is not taken; only
   // where the points resolve the direction to a third of the tolerance (along a corridor, or the street a car drives
@@ -100,15 +102,15 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
                                    lines_.config().ransac.inlier_threshold) &
               resolved;
   int open = *reversed;
-  for (int k = 0; k < 6; ++k)
+  for (int k = 0; judged && k < 6; ++k)
     if ((resolved >> k & 1) && std::abs(difference[k]) * (k < 3 ? 1.0 : obs.lever) > tolerance) open |= 1 << k;
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
-  // stopped short of it (a first step too wide, a flat direction), and the points confirm the lines.
+  // stopped short of it (a first step too wide, a flat direction, a lean), and the points confirm the lines.
   if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {
     open = 0;
     *reversed = 0;
   }
-  return open;
+  return judged ? open : obs.unobserved | open;
 }
 
 Validated MotionValidation::validate(const ValidationFrame& frame, const PointMapTracker& point_map,
@@ -197,8 +199,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                   (open & reversed) != 0 ? "the point map's alignment moves the other way"
                   : judged               ? "the point map's alignment differs by more than validation.tolerance"
                                          : "McNemar z under validation.significance");
-    if (!judged && !frame.guessed) {
-      outcome->failure = why;  // flagged: nothing better to hold (the prediction, or a one-scan map's alignment)
+    if (!judged && !frame.guessed && (open & reversed) == 0) {
+      outcome->failure = why;  // flagged: nothing better to hold (the prediction; a one-scan map's lean, not reversal)
     } else if (aligned && open == kAllAxes) {
       outcome->have = false;
       outcome->failure = std::string(why) + ": the point map's alignment taken";
@@ -207,7 +209,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                lines_.hold_directions(corr, LinePairTable(corr), reference, open, nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
       out.reference = reference;
-      out.held_at_points = judged;
+      out.held_at_points = aligned;
     } else {
       outcome->failure = why;
     }
