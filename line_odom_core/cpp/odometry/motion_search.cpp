@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "common/stopwatch.hpp"
+#include "features/scan_directions.hpp"
 #include "odometry/motion_prediction.hpp"
 #include "registration/line_pair_table.hpp"
 
@@ -47,27 +48,6 @@ ScanFeatures every_kth_line(const ScanFeatures& features, std::size_t max_lines)
   return out;
 }
 
-// The ground of the scan: its best-supported plane within 45 degrees of the sensor's z axis (a LiDAR mounted upright
-// or tilted), its normal up; false when there is none.
-bool ground_plane(const ScanFeatures& features, Plane* ground) {
-  int best = 0;
-  for (const PlaneFeature& plane : features.planes) {
-    const Vec3 n = plane.plane.n.normalized();
-    if (plane.support > best && std::abs(n.z()) > std::sqrt(0.5)) {
-      best = plane.support;
-      const Plane unit = plane.plane.normalized();
-      *ground = n.z() > 0.0 ? unit : Plane{-unit.n, -unit.delta};
-    }
-  }
-  return best > 0;
-}
-
-// The up direction of the scan: the normal of its ground (ground_plane), else the z axis.
-Vec3 ground_up(const ScanFeatures& features) {
-  Plane ground;
-  return ground_plane(features, &ground) ? ground.n : Vec3::UnitZ();
-}
-
 // The scan without the lines that lie within `height` of `ground` (both endpoints): two of them meet under any turn
 // about its normal, so they say nothing about the heading.
 ScanFeatures lines_off_ground(const ScanFeatures& features, const Plane& ground, double height) {
@@ -79,47 +59,6 @@ ScanFeatures lines_off_ground(const ScanFeatures& features, const Plane& ground,
     for (const LineFeature& line : *lines)
       if (!(on_ground(line.segment.a) && on_ground(line.segment.b))) kept->push_back(line);
   return out;
-}
-
-// The median distance of the scan's line midpoints from the sensor: how far a turn moves a typical line, per radian.
-double median_line_range(const ScanFeatures& features) {
-  std::vector<double> ranges;
-  for (const auto* lines : {&features.h_lines, &features.v_lines})
-    for (const LineFeature& line : *lines) ranges.push_back((0.5 * (line.segment.a + line.segment.b)).norm());
-  if (ranges.empty()) return 1.0;
-  std::nth_element(ranges.begin(), ranges.begin() + ranges.size() / 2, ranges.end());
-  return std::max(ranges[ranges.size() / 2], 1e-3);
-}
-
-// The horizontal direction (in the plane normal to `up`, ground_up) along which the scan's lines run most, by length
-// in 1-degree bins smoothed over three: a road's, whatever the sensor's mounting yaw or tilt. The ground's ring and
-// radial lines run every way and only raise the floor.
-Vec3 dominant_line_direction(const ScanFeatures& features, const Vec3& up) {
-  constexpr int kBins = 180;
-  // a basis of the ground's plane: the sensor's x axis projected onto it, and up x that
-  Vec3 e1 = Vec3::UnitX() - up.x() * up;
-  if (!(e1.norm() > 1e-6)) e1 = Vec3::UnitY() - up.y() * up;
-  e1.normalize();
-  const Vec3 e2 = up.cross(e1);
-  std::array<double, kBins> length{};
-  for (const auto* lines : {&features.h_lines, &features.v_lines})
-    for (const LineFeature& line : *lines) {
-      const Vec3 d = line.segment.b - line.segment.a;
-      const double u = d.dot(e1), v = d.dot(e2);
-      const double horizontal = std::hypot(u, v);
-      if (!(horizontal > 2.0 * std::abs(d.dot(up)))) continue;  // steeper than 27 degrees
-      double angle = std::atan2(v, u);
-      if (angle < 0.0) angle += kPi;
-      length[std::min(kBins - 1, static_cast<int>(angle / kPi * kBins))] += horizontal;
-    }
-  int best = 0;
-  double best_length = -1.0;
-  for (int bin = 0; bin < kBins; ++bin) {
-    const double smoothed = length[(bin + kBins - 1) % kBins] + length[bin] + length[(bin + 1) % kBins];
-    if (smoothed > best_length) best_length = smoothed, best = bin;
-  }
-  const double angle = (best + 0.5) * kPi / kBins;
-  return std::cos(angle) * e1 + std::sin(angle) * e2;
 }
 
 // The motions of a support scan (support_peak): shifted along an axis, or turned about it through the current scan's

@@ -68,6 +68,12 @@ bool PointMapTracker::fits_as_well(const std::vector<Vec3>& points, const RigidT
   return point_cost(map_, checked, previous_pose * a, sigma) <= point_cost(map_, checked, previous_pose * b, sigma);
 }
 
+double PointMapTracker::cost(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
+                             const RigidTransform& motion) const {
+  const std::vector<Vec3> checked = spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints);
+  return point_cost(map_, checked, previous_pose * motion, model_error_.sigma());
+}
+
 void PointMapTracker::add(const std::vector<Vec3>& points, const RigidTransform& pose,
                           const RigidTransform& predicted, const RigidTransform& registered) {
   if (!options_.enabled) return;
