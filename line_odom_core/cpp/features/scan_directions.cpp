@@ -62,4 +62,17 @@ double median_line_range(const ScanFeatures& features) {
   return std::max(ranges[ranges.size() / 2], 1e-3);
 }
 
+std::vector<Vec3> travel_directions(const ScanFeatures& features) {
+  constexpr double kSameDirectionCosine = 0.999;
+  std::vector<Vec3> directions{Vec3::UnitX(), Vec3::UnitY(), Vec3::UnitZ()};
+  const Vec3 up = ground_up(features);
+  const Vec3 level_x = (Vec3::UnitX() - up.x() * up).normalized();
+  for (const Vec3& direction : {level_x, dominant_line_direction(features, up)}) {
+    bool listed = false;
+    for (const Vec3& d : directions) listed = listed || std::abs(d.dot(direction)) >= kSameDirectionCosine;
+    if (!listed) directions.push_back(direction);
+  }
+  return directions;
+}
+
 }  // namespace line_odom

@@ -253,15 +253,13 @@ bool MotionSearch::weak_translation_peak(CandidateIndex& index, const ScanFeatur
     const Eigen::SelfAdjointEigenSolver<Mat3> eigen(covariance->topLeftCorner<3, 3>());
     if (eigen.info() == Eigen::Success) scans.emplace_back(estimate, eigen.eigenvectors().col(2));
   }
-  for (int axis = 0; axis < 3; ++axis) scans.emplace_back(prediction, Vec3::Unit(axis));
-  // Also along the sensor's x axis laid onto the ground (a sensor tilted forward or back) and along the lines.
-  const Vec3 up = ground_up(cur);
-  const Vec3 level_x = (Vec3::UnitX() - up.x() * up).normalized();
-  const Vec3 along_lines = dominant_line_direction(cur, up);
-  for (const Vec3& direction : {level_x, along_lines}) {
-    bool scanned = direction.cwiseAbs().maxCoeff() >= kSameAxisCosine;
-    for (const auto& scan : scans) scanned = scanned || std::abs(scan.second.dot(direction)) >= kSameAxisCosine;
-    if (!scanned) scans.emplace_back(prediction, direction);
+  // Each sensor axis; the other travel directions unless the estimate's weakest one is already along them.
+  const std::vector<Vec3> directions = travel_directions(cur);
+  for (std::size_t k = 0; k < directions.size(); ++k) {
+    bool scanned = false;
+    for (const auto& scan : scans)
+      scanned = scanned || (k >= 3 && std::abs(scan.second.dot(directions[k])) >= kSameAxisCosine);
+    if (!scanned) scans.emplace_back(prediction, directions[k]);
   }
   return translation_peak(index, cur, estimate, scans, peak);
 }

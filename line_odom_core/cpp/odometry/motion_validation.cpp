@@ -9,6 +9,7 @@
 #include <utility>
 
 #include "common/stopwatch.hpp"
+#include "features/scan_directions.hpp"
 
 namespace line_odom {
 
@@ -122,8 +123,17 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   RigidTransform by_points;
   Mat6 points_covariance;
   int matched = 0;
-  const bool aligned = !frame.guessed && point_map.align(*frame.points, frame.previous_pose, frame.prediction,
-                                                         &by_points, &matched, &points_covariance);
+  // A first motion is aligned from standing still and from the starts along the directions a vehicle travels that the
+  // points fit best: from standing still alone, a scan the car moved 1.3 m along a highway falls into standing still's
+  // basin (its rings' points match the one-scan map's where they sat), a basin its points fit worse.
+  const double reach = lines_.config().registration.max_translation;
+  const bool aligned =
+      !frame.guessed &&
+      (frame.first_motion ? point_map.align_from_starts(*frame.points, frame.previous_pose, frame.prediction,
+                                                        travel_directions(*frame.current), reach, &by_points, &matched,
+                                                        &points_covariance)
+                          : point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points, &matched,
+                                            &points_covariance));
   st->points_aligned = aligned;
   st->point_map_matches = matched;
   const RigidTransform* points = aligned ? &by_points : nullptr;

@@ -1,5 +1,8 @@
 #include "odometry/point_map_tracker.hpp"
 
+#include <cmath>
+#include <limits>
+
 namespace line_odom {
 
 namespace {
@@ -44,12 +47,50 @@ Mat6 adjoint(const RigidTransform& T) {
 
 }  // namespace
 
+std::vector<Vec3> PointMapTracker::thinned(const std::vector<Vec3>& points) const {
+  return spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints);
+}
+
 bool PointMapTracker::align(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                             const RigidTransform& prediction, RigidTransform* motion, int* matched,
                             Mat6* covariance) const {
   if (!ready()) return false;
-  const PointAlignment aligned = align_points(map_, spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints),
-                                              previous_pose * prediction, model_error_.sigma(), options_.alignment);
+  const PointAlignment aligned =
+      align_points(map_, thinned(points), previous_pose * prediction, model_error_.sigma(), options_.alignment);
+  return accept(aligned, previous_pose, motion, matched, covariance);
+}
+
+bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
+                                        const RigidTransform& prediction, const std::vector<Vec3>& directions,
+                                        double reach, RigidTransform* motion, int* matched, Mat6* covariance) const {
+  if (!ready()) return false;
+  const std::vector<Vec3> aligned_points = thinned(points);
+  const double sigma = model_error_.sigma();
+  const double step = alignment_kernel_scale(map_, sigma);
+  const int steps = static_cast<int>(reach / step + 1e-9);
+  PointAlignment best = align_points(map_, aligned_points, previous_pose * prediction, sigma, options_.alignment);
+  double best_cost = point_cost(map_, aligned_points, best.pose, sigma);
+  for (const Vec3& direction : directions) {
+    RigidTransform start = prediction;
+    double start_cost = std::numeric_limits<double>::infinity();
+    for (int k = -steps; k <= steps; ++k) {
+      if (k == 0) continue;
+      RigidTransform shifted = prediction;
+      shifted.t += k * step * direction;
+      const double c = point_cost(map_, aligned_points, previous_pose * shifted, sigma);
+      if (c < start_cost) start_cost = c, start = shifted;
+    }
+    if (!std::isfinite(start_cost)) continue;
+    const PointAlignment other = align_points(map_, aligned_points, previous_pose * start, sigma, options_.alignment);
+    if (other.matched < kMinMatched || !other.pose.is_finite()) continue;
+    const double cost = point_cost(map_, aligned_points, other.pose, sigma);
+    if (cost < best_cost) best_cost = cost, best = other;
+  }
+  return accept(best, previous_pose, motion, matched, covariance);
+}
+
+bool PointMapTracker::accept(const PointAlignment& aligned, const RigidTransform& previous_pose,
+                             RigidTransform* motion, int* matched, Mat6* covariance) const {
   *matched = aligned.matched;
   if (aligned.matched < kMinMatched || !aligned.pose.is_finite()) return false;
   *motion = previous_pose.inverse() * aligned.pose;
@@ -63,7 +104,7 @@ bool PointMapTracker::align(const std::vector<Vec3>& points, const RigidTransfor
 
 bool PointMapTracker::fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                                    const RigidTransform& a, const RigidTransform& b) const {
-  const std::vector<Vec3> checked = spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints);
+  const std::vector<Vec3> checked = thinned(points);
   const double sigma = model_error_.sigma();
   return point_cost(map_, checked, previous_pose * a, sigma) <= point_cost(map_, checked, previous_pose * b, sigma);
 }

@@ -29,6 +29,12 @@ class PointMapTracker {
   // `covariance` (nullable): of the motion, in its own chart (motion_difference; x y z rx ry rz of the previous frame).
   bool align(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& prediction,
              RigidTransform* motion, int* matched, Mat6* covariance = nullptr) const;
+  // align from several starts: `prediction`, and along each of `directions` (unit) the shift of `prediction` the points
+  // fit best (point_cost) of those every alignment kernel width (a start within it of the right motion falls into its
+  // basin) out to `reach` either side. Of the alignments, the one the points fit best is kept.
+  bool align_from_starts(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
+                         const RigidTransform& prediction, const std::vector<Vec3>& directions, double reach,
+                         RigidTransform* motion, int* matched, Mat6* covariance = nullptr) const;
   // Whether `points` fit the map at least as well at motion `a` as at `b` (point_cost; both after `previous_pose`).
   bool fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                     const RigidTransform& b) const;
@@ -45,6 +51,12 @@ class PointMapTracker {
   void reset();
 
  private:
+  // The scan's points as they are aligned: thinned to one per 1.5 voxels, at most a budget of them.
+  std::vector<Vec3> thinned(const std::vector<Vec3>& points) const;
+  // The motion of an alignment after `previous_pose`, when enough points matched.
+  bool accept(const PointAlignment& aligned, const RigidTransform& previous_pose, RigidTransform* motion, int* matched,
+              Mat6* covariance) const;
+
   PointMapOptions options_;
   double max_range_;
   double voxel_;

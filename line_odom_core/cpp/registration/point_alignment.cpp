@@ -10,10 +10,6 @@ namespace line_odom {
 
 namespace {
 
-// Geman-McClure scale: sigma / 3, but never below a quarter voxel: the map keeps a point per half voxel, so the
-// nearest one is up to that far from a point placed right.
-double kernel_scale(const VoxelPointMap& map, double sigma) { return std::max(sigma / 3.0, 0.25 * map.voxel()); }
-
 // The residual of q against the map: to the plane of its nearest point's voxel where that voxel holds a plane (sampled
 // surfaces slide under point-to-point matching: a ring of points keeps its place relative to the sensor, so its nearest
 // point would hold the scan back), else to that point. False without a map point within max_distance.
@@ -38,13 +34,19 @@ bool residual_of(const VoxelPointMap& map, const Vec3& q, double max_distance, R
 
 }  // namespace
 
+// Geman-McClure scale: sigma / 3, but never below a quarter voxel: the map keeps a point per half voxel, so the
+// nearest one is up to that far from a point placed right.
+double alignment_kernel_scale(const VoxelPointMap& map, double sigma) {
+  return std::max(sigma / 3.0, 0.25 * map.voxel());
+}
+
 PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& points,
                             const RigidTransform& initial_pose, double sigma, const PointAlignmentOptions& options) {
   PointAlignment out;
   out.pose = initial_pose;
   if (map.empty() || points.empty() || !(sigma > 0.0)) return out;
   const double max_distance = 3.0 * sigma;
-  const double scale = kernel_scale(map, sigma);
+  const double scale = alignment_kernel_scale(map, sigma);
   const double kernel = scale * scale;  // m^2
   for (int it = 0; it < options.max_iterations; ++it) {
     Mat6 H = Mat6::Zero();
@@ -97,7 +99,7 @@ PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& p
 
 double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma) {
   if (points.empty()) return 1.0;
-  const double scale = kernel_scale(map, sigma);
+  const double scale = alignment_kernel_scale(map, sigma);
   double cost = 0.0;
   for (const Vec3& p : points) {
     Residual r;

@@ -35,6 +35,9 @@ struct PointAlignment {
 PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& points,
                             const RigidTransform& initial_pose, double sigma, const PointAlignmentOptions& options);
 
+// The kernel scale of align_points and point_cost: how far a point may lie off the map and still pull the pose.
+double alignment_kernel_scale(const VoxelPointMap& map, double sigma);
+
 // The mean Geman-McClure cost (each point's in [0, 1), 1 without a map point within 3 sigma) of `points` at `pose`,
 // with the residuals of align_points: what the points say of a motion found elsewhere.
 double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma);
