@@ -100,10 +100,10 @@ def test_a_measured_velocity_is_never_searched_and_stays_as_it_is():
     """KITTI 04 at 1/36 from scan 0: the first motion is found (0.009 m off), and the forward motion, which the
     highway's lines do not observe at this density, is held at that measured velocity on the next 8 frames. The
     search never runs (no unmeasured direction), so those frames are the constant-velocity ones: 0.019 m a frame
-    (docs/RESULTS.md; bench/accuracy.py's row is unchanged to the printed digit). From scan 2 the first motion is
-    held at standing still and the clip never observes the forward motion again, from standing still or from the
-    right shift (the registration from the support scan's peak, 1.15-1.35 m at scans 4 and 6, is degenerate): it is
-    searched on every frame and stays held, flagged, 1.32 m a frame off."""
+    (docs/RESULTS.md; bench/accuracy.py's row is unchanged to the printed digit). From scan 2 the lines leave the first
+    motion open along the road; the points, aligned also from the shifts along the directions a vehicle travels, put
+    it 0.09 m short (from standing still alone they stayed there, and every frame was held 1.32 m off). The frames
+    after it hold that velocity, flagged while it is unmeasured, and none is taken from the search."""
     from line_odom.datasets import kitti_sequence
 
     data = kitti_sequence("04")
@@ -121,8 +121,8 @@ def test_a_measured_velocity_is_never_searched_and_stays_as_it_is():
         if start == 0:
             assert all(row[2] == 0 for row in rows) and errors.mean() < 0.03, rows
         else:
-            assert [row[2] for row in rows] == [6] + [1] * (len(rows) - 1), rows
-            assert all(row[1] for row in rows), rows  # flagged, never a confident standing still
+            assert rows[0][2] == 6 and errors.max() < 0.15, rows
+            assert all(row[1] for row in rows if row[2] > 0), rows  # flagged while the velocity is unmeasured
 
 
 def test_the_unmeasured_velocity_reaches_the_diagnostics():

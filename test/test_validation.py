@@ -199,12 +199,13 @@ def test_bad_validation_and_point_map_settings_are_refused_naming_them():
             line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {name: value}))
 
 
-@pytest.mark.parametrize("start", [1, 2, 3, 5, 6])
+@pytest.mark.parametrize("start", [1, 2, 3, 4, 5])
 def test_a_highway_first_motion_the_lines_leave_open_is_found_by_the_points(start):
     """KITTI 04 at 1/36 started mid-drive (1.3 m a scan): the lines' first motion is ill-conditioned along the road, and
     the points aligned from standing still fall into standing still's basin (0.1 m): every frame was held there,
     1.1-1.3 m off. Aligned also from the shifts along the directions a vehicle travels that the points fit best, they
-    find it, and the frames after it hold it: each within 0.25 m."""
+    find it (fitting it better by more than validation.significance standard errors), and the frames after it hold
+    it: each within 0.25 m."""
     data = kitti_sequence("04")
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 6}))
     results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in range(start, len(data))]

@@ -130,7 +130,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   const bool aligned =
       !frame.guessed &&
       (frame.first_motion ? point_map.align_from_starts(*frame.points, frame.previous_pose, frame.prediction,
-                                                        travel_directions(*frame.current), reach, &by_points, &matched,
+                                                        travel_directions(*frame.current), reach,
+                                                        lines_.config().validation.significance, &by_points, &matched,
                                                         &points_covariance)
                           : point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points, &matched,
                                             &points_covariance));

@@ -62,13 +62,16 @@ bool PointMapTracker::align(const std::vector<Vec3>& points, const RigidTransfor
 
 bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                                         const RigidTransform& prediction, const std::vector<Vec3>& directions,
-                                        double reach, RigidTransform* motion, int* matched, Mat6* covariance) const {
+                                        double reach, double significance, RigidTransform* motion, int* matched,
+                                        Mat6* covariance) const {
   if (!ready()) return false;
   const std::vector<Vec3> aligned_points = thinned(points);
   const double sigma = model_error_.sigma();
   const double step = alignment_kernel_scale(map_, sigma);
   const int steps = static_cast<int>(reach / step + 1e-9);
-  PointAlignment best = align_points(map_, aligned_points, previous_pose * prediction, sigma, options_.alignment);
+  const PointAlignment from_prediction =
+      align_points(map_, aligned_points, previous_pose * prediction, sigma, options_.alignment);
+  PointAlignment best = from_prediction;
   double best_cost = point_cost(map_, aligned_points, best.pose, sigma);
   for (const Vec3& direction : directions) {
     RigidTransform start = prediction;
@@ -86,6 +89,9 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
     const double cost = point_cost(map_, aligned_points, other.pose, sigma);
     if (cost < best_cost) best_cost = cost, best = other;
   }
+  if (best.pose.t != from_prediction.pose.t &&
+      !(point_cost_advantage(map_, aligned_points, best.pose, from_prediction.pose, sigma) >= significance))
+    best = from_prediction;
   return accept(best, previous_pose, motion, matched, covariance);
 }
 

@@ -31,10 +31,11 @@ class PointMapTracker {
              RigidTransform* motion, int* matched, Mat6* covariance = nullptr) const;
   // align from several starts: `prediction`, and along each of `directions` (unit) the shift of `prediction` the points
   // fit best (point_cost) of those every alignment kernel width (a start within it of the right motion falls into its
-  // basin) out to `reach` either side. Of the alignments, the one the points fit best is kept.
+  // basin) out to `reach` either side. An alignment from a shift replaces the prediction's only where the points fit
+  // it better by `significance` standard errors (point_cost_advantage): along a corridor they fit every shift alike.
   bool align_from_starts(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                          const RigidTransform& prediction, const std::vector<Vec3>& directions, double reach,
-                         RigidTransform* motion, int* matched, Mat6* covariance = nullptr) const;
+                         double significance, RigidTransform* motion, int* matched, Mat6* covariance = nullptr) const;
   // Whether `points` fit the map at least as well at motion `a` as at `b` (point_cost; both after `previous_pose`).
   bool fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                     const RigidTransform& b) const;

@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "registration/refine.hpp"
 
@@ -97,20 +98,40 @@ PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& p
   return out;
 }
 
+namespace {
+
+// One point's term of point_cost: its Geman-McClure cost, 1 without a map point within 3 sigma.
+double point_term(const VoxelPointMap& map, const Vec3& q, double sigma, double scale) {
+  Residual r;
+  if (!residual_of(map, q, 3.0 * sigma, &r)) return 1.0;
+  const double d2 = r.squared();
+  return d2 / (scale * scale + d2);
+}
+
+}  // namespace
+
 double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma) {
   if (points.empty()) return 1.0;
   const double scale = alignment_kernel_scale(map, sigma);
   double cost = 0.0;
-  for (const Vec3& p : points) {
-    Residual r;
-    if (!residual_of(map, pose.apply(p), 3.0 * sigma, &r)) {
-      cost += 1.0;
-      continue;
-    }
-    const double d2 = r.squared();
-    cost += d2 / (scale * scale + d2);
-  }
+  for (const Vec3& p : points) cost += point_term(map, pose.apply(p), sigma, scale);
   return cost / static_cast<double>(points.size());
+}
+
+double point_cost_advantage(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& better,
+                            const RigidTransform& worse, double sigma) {
+  const double n = static_cast<double>(points.size());
+  if (n < 2.0) return 0.0;
+  const double scale = alignment_kernel_scale(map, sigma);
+  double sum = 0.0, squares = 0.0;
+  for (const Vec3& p : points) {
+    const double d = point_term(map, worse.apply(p), sigma, scale) - point_term(map, better.apply(p), sigma, scale);
+    sum += d;
+    squares += d * d;
+  }
+  const double mean = sum / n;
+  const double variance = std::max(0.0, (squares - n * mean * mean) / (n - 1.0));
+  return variance > 0.0 ? mean / std::sqrt(variance / n) : (mean > 0.0 ? std::numeric_limits<double>::infinity() : 0.0);
 }
 
 void MotionModelError::add(const RigidTransform& predicted, const RigidTransform& registered) {

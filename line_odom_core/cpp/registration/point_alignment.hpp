@@ -42,6 +42,11 @@ double alignment_kernel_scale(const VoxelPointMap& map, double sigma);
 // with the residuals of align_points: what the points say of a motion found elsewhere.
 double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma);
 
+// How much better `points` fit the map at `better` than at `worse` (point_cost's per-point terms): the mean of the
+// paired differences in standard errors (a z; 0 for fewer than two points).
+double point_cost_advantage(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& better,
+                            const RigidTransform& worse, double sigma);
+
 // How far off the motion model has been (KISS-ICP's adaptive threshold): the rms over the frames that moved of the
 // distance a point at `range` metres moves between the predicted and the registered motion.
 class MotionModelError {
