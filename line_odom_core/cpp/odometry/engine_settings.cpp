@@ -325,7 +325,8 @@ SettingsTable<ObservabilityOptions> validation_settings() {
       number("motion_share", &ObservabilityOptions::motion_share, "[0, 1]", "",
              "... or this share of the motion's translation, when larger"),
       number("significance", &ObservabilityOptions::significance, "(0, 100]", "",
-             "z a push must be rejected by for its direction to count as pinned down"),
+             "z a push must be rejected by for its direction to count as pinned down; and by which a first motion's "
+             "points must fit an alignment from a shifted start better than standing still's"),
   }};
 }
 
