@@ -124,8 +124,9 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   Mat6 points_covariance;
   int matched = 0;
   // A first motion is aligned from standing still and from the starts along the directions a vehicle travels that the
-  // points fit best: from standing still alone, a scan the car moved 1.3 m along a highway falls into standing still's
-  // basin (its rings' points match the one-scan map's where they sat), a basin its points fit worse.
+  // points fit best: from standing still alone, a sparse scan of a car at highway speed falls into standing still's
+  // basin (its rings' points match the one-scan map's where they sat), even where they fit the right motion clearly
+  // better (align_from_starts).
   const double reach = lines_.config().registration.max_translation;
   const bool aligned =
       !frame.guessed &&
