@@ -257,8 +257,8 @@ bool MotionSearch::weak_translation_peak(CandidateIndex& index, const ScanFeatur
   const std::vector<Vec3> directions = travel_directions(cur);
   for (std::size_t k = 0; k < directions.size(); ++k) {
     bool scanned = false;
-    for (const auto& scan : scans)
-      scanned = scanned || (k >= 3 && std::abs(scan.second.dot(directions[k])) >= kSameAxisCosine);
+    if (k >= 3)
+      for (const auto& scan : scans) scanned = scanned || std::abs(scan.second.dot(directions[k])) >= kSameAxisCosine;
     if (!scanned) scans.emplace_back(prediction, directions[k]);
   }
   return translation_peak(index, cur, estimate, scans, peak);

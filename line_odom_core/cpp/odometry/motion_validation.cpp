@@ -90,8 +90,8 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
   // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
   // is not taken. The lines alone judge after a frame that stayed out of the map: its place on the map is not known.
-  const bool judged = judges(frame, point_map, by_points);
-  if (!judged && !(frame.first_motion && by_points != nullptr && point_map.holds_last_scan())) return obs.unobserved;
+  if (by_points == nullptr || !point_map.holds_last_scan()) return obs.unobserved;
+  const bool judged = judges(frame, point_map, by_points);  // else a first motion: only the reversal below
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
   // tolerance, or on the other side of standing still (reversed_translation), the lines' motion is not taken; only
   // where the points resolve the direction to a third of the tolerance (along a corridor, or the street a car drives

@@ -73,6 +73,7 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
       align_points(map_, aligned_points, previous_pose * prediction, sigma, options_.alignment);
   PointAlignment best = from_prediction;
   double best_cost = point_cost(map_, aligned_points, best.pose, sigma);
+  bool shifted = false;  // best is an alignment from a shifted start
   for (const Vec3& direction : directions) {
     RigidTransform start = prediction;
     double start_cost = std::numeric_limits<double>::infinity();
@@ -87,10 +88,9 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
     const PointAlignment other = align_points(map_, aligned_points, previous_pose * start, sigma, options_.alignment);
     if (other.matched < kMinMatched || !other.pose.is_finite()) continue;
     const double cost = point_cost(map_, aligned_points, other.pose, sigma);
-    if (cost < best_cost) best_cost = cost, best = other;
+    if (cost < best_cost) best_cost = cost, best = other, shifted = true;
   }
-  if (best.pose.t != from_prediction.pose.t &&
-      !(point_cost_advantage(map_, aligned_points, best.pose, from_prediction.pose, sigma) >= significance))
+  if (shifted && !(point_cost_advantage(map_, aligned_points, best.pose, from_prediction.pose, sigma) >= significance))
     best = from_prediction;
   return accept(best, previous_pose, motion, matched, covariance);
 }
@@ -113,12 +113,6 @@ bool PointMapTracker::fits_as_well(const std::vector<Vec3>& points, const RigidT
   const std::vector<Vec3> checked = thinned(points);
   const double sigma = model_error_.sigma();
   return point_cost(map_, checked, previous_pose * a, sigma) <= point_cost(map_, checked, previous_pose * b, sigma);
-}
-
-double PointMapTracker::cost(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
-                             const RigidTransform& motion) const {
-  const std::vector<Vec3> checked = spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints);
-  return point_cost(map_, checked, previous_pose * motion, model_error_.sigma());
 }
 
 void PointMapTracker::add(const std::vector<Vec3>& points, const RigidTransform& pose,

@@ -39,8 +39,6 @@ class PointMapTracker {
   // Whether `points` fit the map at least as well at motion `a` as at `b` (point_cost; both after `previous_pose`).
   bool fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                     const RigidTransform& b) const;
-  // How badly `points` fit the map at `motion` after `previous_pose` (point_cost: 0 all on the map, 1 none near it).
-  double cost(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& motion) const;
   // A frame done: its points at odometry pose `pose` (at place_of(pose) on the map); `predicted` against `registered`
   // tells the motion model's error.
   void add(const std::vector<Vec3>& points, const RigidTransform& pose, const RigidTransform& predicted,
