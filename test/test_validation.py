@@ -211,3 +211,20 @@ def test_a_highway_first_motion_the_lines_leave_open_is_found_by_the_points(star
     results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in range(start, len(data))]
     t, _ = relative_pose_errors(np.array([r.pose for r in results]), data.poses[start:])
     assert t.max() < 0.25, np.round(t, 3)
+
+
+@pytest.mark.parametrize("sequence, start, level", [("08", 0, "1/36"), ("08", 0, "1/64"), ("02", 5, "1/36"),
+                                                    ("02", 5, "1/64"), ("02", 1, "1/36")])
+def test_a_first_motion_turn_the_lines_leave_open_is_the_points(sequence, start, level):
+    """Sparse first motions whose lines' turn was 0.8-1.9 deg off (a turn traded for a sideways shift along the
+    street), not confirmed by McNemar's test, and reported with it: the turn is now the points' alignment's, flagged."""
+    data = kitti_sequence(sequence, start + 2)
+    data.poses = data.poses[start:]
+    step = {"1/36": 6, "1/64": 8}[level]
+    odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": step}))
+    results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in (start, start + 1)]
+    _, rotation = relative_pose_errors(np.array([r.pose for r in results]), data.poses)
+    first = results[1]
+    assert "taken from the point map's alignment" in first.stats["failure"], first.stats["failure"]
+    assert first.degenerate and first.stats["unobserved"] & 0x38
+    assert rotation[0] < 0.4, rotation

@@ -212,7 +212,23 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                   : judged               ? "the point map's alignment differs by more than validation.tolerance"
                                          : "McNemar z under validation.significance");
     if (!judged && !frame.guessed && (open & reversed) == 0) {
-      outcome->failure = why;  // flagged: nothing better to hold (the prediction; a one-scan map's lean, not reversal)
+      // Flagged: nothing better to hold the translations at (the prediction; a one-scan map's lean, not reversal).
+      // A first motion's rotations the lines leave open are the points', where they resolve them: the lines' rotation
+      // there is one end of a valley they cannot tell apart (a turn traded for a sideways shift along a street's
+      // walls); the points measured it. Not the translations, which lean to standing still.
+      outcome->failure = why;
+      const int turns = aligned && frame.first_motion
+                            ? open & kRotationAxes &
+                                  resolved_axes(points_covariance, observability_push(outcome->best, lines_.config().validation),
+                                                obs.lever)
+                            : 0;
+      if (turns != 0) {
+        Vec6 xi = motion_difference(by_points, outcome->best);
+        for (int k = 0; k < 6; ++k)
+          if (!(turns >> k & 1)) xi[k] = 0.0;
+        outcome->best = apply_motion_difference(xi, outcome->best);
+        outcome->failure += ": " + axes_text(turns) + " taken from the point map's alignment";
+      }
     } else if (aligned && open == kAllAxes) {
       outcome->have = false;
       outcome->failure = std::string(why) + ": the point map's alignment taken";
