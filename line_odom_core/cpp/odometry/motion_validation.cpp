@@ -128,14 +128,21 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   // basin (its rings' points match the one-scan map's where they sat), even where they fit the right motion clearly
   // better (align_from_starts).
   const double reach = lines_.config().registration.max_translation;
+  auto aligned_before = [&](const MapAlignment& before) {
+    by_points = before.motion;
+    matched = before.matched;
+    points_covariance = before.covariance;
+    return before.aligned;
+  };
   const bool aligned =
       !frame.guessed &&
       (frame.first_motion ? point_map.align_from_starts(*frame.points, frame.previous_pose, frame.prediction,
                                                         travel_directions(*frame.current), reach,
                                                         lines_.config().validation.significance, &by_points, &matched,
                                                         &points_covariance)
-                          : point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points, &matched,
-                                            &points_covariance));
+       : frame.aligned_before ? aligned_before(*frame.aligned_before)
+                              : point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points,
+                                                &matched, &points_covariance));
   st->points_aligned = aligned;
   st->point_map_matches = matched;
   const RigidTransform* points = aligned ? &by_points : nullptr;

@@ -17,6 +17,14 @@
 
 namespace line_odom {
 
+// A scan's points aligned to the point map from the prediction (PointMapTracker::align).
+struct MapAlignment {
+  bool aligned = false;
+  RigidTransform motion;
+  int matched = 0;
+  Mat6 covariance = Mat6::Zero();
+};
+
 struct ValidationFrame {
   const ScanFeatures* previous = nullptr;  // frame a of the registration
   ScanFeatures* current = nullptr;
@@ -25,6 +33,7 @@ struct ValidationFrame {
   RigidTransform prediction;
   bool first_motion = false;  // no velocity before this frame
   bool guessed = false;       // the prediction is a caller's measurement: open directions are held at it
+  const MapAlignment* aligned_before = nullptr;  // nullable: this frame's alignment, made before the lines
   RegistrationFrame registration;
 };
 

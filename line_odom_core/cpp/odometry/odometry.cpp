@@ -253,12 +253,13 @@ SweepVelocity Odometry::sweep_velocity(double stamp, const RigidTransform* guess
 // direction of that motion is observed by the pairs with the last scan alone; else (a sparse highway, a corridor,
 // where the older scans' lines make the motion along the road look observed when it is not) against the last scan.
 PassOutcome Odometry::register_on_window(const ScanFeatures& cur, const RigidTransform& prediction,
-                                         const RegistrationFrame& frame, FrameStats* st) const {
+                                         const RigidTransform& start, const RegistrationFrame& frame,
+                                         FrameStats* st) const {
   const ScanHistory& scans = state_.scans;
   if (scans.window.size() > 1 && state_.prediction.unmeasured_projector().isZero()) {
     FrameStats window_stats = *st;
     PassOutcome on_window =
-        lines_.register_features(scans.window.merged(), cur, prediction, prediction, true, frame, &window_stats);
+        lines_.register_features(scans.window.merged(), cur, prediction, start, true, frame, &window_stats);
     const bool kept = on_window.have && !on_window.stats.degenerate && on_window.held_directions == 0 &&
                       lines_.observes_every_direction(scans.previous, cur, on_window.best, &window_stats);
     st->ms = window_stats.ms;
@@ -269,7 +270,7 @@ PassOutcome Odometry::register_on_window(const ScanFeatures& cur, const RigidTra
       return on_window;
     }
   }
-  return lines_.register_features(scans.previous, cur, prediction, prediction, true, frame, st);
+  return lines_.register_features(scans.previous, cur, prediction, start, true, frame, st);
 }
 
 FrameResult Odometry::register_depth(const float* depth, int rows, int cols, const Mat3& K, double stamp,
@@ -390,12 +391,27 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     if (rotation_guessed) st.prediction += "+imu";
 
     // 3. The lines' registration (paper §6.3), searched beyond the prediction's reach where it cannot reach.
+    // A scan dense enough for the points' refinement (points.max_downsample) starts the lines at its points'
+    // alignment to the map: from the prediction, the candidates picked near it can hold the lines at its turn rate
+    // where the car turns into a bend (the lines' pairs near the old heading out-support the right ones). The
+    // validation reads the same alignment.
     const RegistrationFrame frame = registration_frame();
     st.window_scans = 1;
+    MapAlignment aligned_before;
+    const bool align_first = !first_motion && !guessed && points_refining() && s.point_map.enabled() &&
+                             s.point_map.holds_last_scan() && config_.validation.enabled;
+    if (align_first) {
+      Stopwatch stage;
+      aligned_before.aligned =
+          s.point_map.align(scan.points, s.point_map.place_of(s.pose), prediction, &aligned_before.motion,
+                            &aligned_before.matched, &aligned_before.covariance);
+      st.ms.validation += stage.ms();
+    }
     PassOutcome outcome =
         first_motion ? search_.search_first_motion(s.scans.previous, s.scans.previous_coarse, scan.features,
                                                    scan.coarse, prediction, frame, &st)
-                     : register_on_window(scan.features, prediction, frame, &st);
+                     : register_on_window(scan.features, prediction,
+                                          aligned_before.aligned ? aligned_before.motion : prediction, frame, &st);
     if (first_motion && rotation_guessed && !registered_in_full(outcome)) {
       // A gyro's turn a little off can cost the first motion where the search from standing still finds it (KITTI 04
       // at 1/64, 0.05 deg of yaw, held at a standstill for good): that search runs too, and is taken when it registers
@@ -441,6 +457,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     check.prediction = prediction;
     check.first_motion = first_motion;
     check.guessed = guessed;
+    if (align_first && sweep == nullptr) check.aligned_before = &aligned_before;  // the same points (not deskewed again)
     check.registration = frame;
     const Validated validated = MotionValidation(lines_).validate(check, s.point_map, &outcome, &st);
 

@@ -122,9 +122,9 @@ class Odometry {
   // turn); turning at `sweep_rate` when given.
   SweepVelocity sweep_velocity(double stamp, const RigidTransform* guess, const Mat3* rotation_guess,
                                const Vec3* sweep_rate) const;
-  // The lines' registration of `cur` against the window of previous scans when it observes every direction with the
-  // last scan alone (registration.window), else against the last scan.
-  PassOutcome register_on_window(const ScanFeatures& cur, const RigidTransform& prediction,
+  // The lines' registration of `cur` from `start` against the window of previous scans when it observes every
+  // direction with the last scan alone (registration.window), else against the last scan.
+  PassOutcome register_on_window(const ScanFeatures& cur, const RigidTransform& prediction, const RigidTransform& start,
                                  const RegistrationFrame& frame, FrameStats* st) const;
   RegistrationFrame registration_frame() const;
 
