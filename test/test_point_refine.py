@@ -49,21 +49,31 @@ def test_the_frame_keeps_the_lines_covariance():
 
 
 def test_a_negligible_weight_keeps_the_lines_estimate():
-    """Joint with the lines: as the points' weight vanishes the result is the lines' estimate."""
+    """Joint with the lines: as the points' weight vanishes the result is the lines' estimate, the one a refinement
+    that is never taken keeps (points.max_translation 0; the lines start from the same alignment to the map)."""
     _, faint = run("07", 3, **{"points.weight": 1e-9})
-    _, plain = run("07", 3, **{"points.weight": 0.0})
+    _, lines_only = run("07", 3, **{"points.max_translation": 0.0})
     assert all(r.stats["points_refined"] for r in faint[1:])
-    for a, b in zip(faint, plain):
+    for a, b in zip(faint, lines_only):
         np.testing.assert_allclose(a.pose, b.pose, atol=1e-7)
 
 
 def test_a_refinement_moving_too_far_is_not_taken():
     _, capped = run("07", 3, **{"points.max_translation": 0.0})
-    _, plain = run("07", 3, **{"points.weight": 0.0})
+    _, refined = run("07", 3)
     assert not any(r.stats["points_refined"] for r in capped)
     assert all(r.stats["point_matches"] > 1000 for r in capped[1:])  # it ran, and was not taken
-    for a, b in zip(capped, plain):
-        np.testing.assert_array_equal(a.pose, b.pose)
+    assert all(r.stats["points_refined"] for r in refined[1:])
+    assert all(np.abs(a.delta - b.delta).max() > 1e-5 for a, b in zip(capped[1:], refined[1:]))
+
+
+def test_a_dense_scan_starts_the_lines_at_its_points_alignment():
+    """Where the points refine the motion they also start the lines (docs/NODE.md, "Point-to-plane refinement"):
+    with the refinement off (points.weight 0) the lines start from the prediction and register another motion."""
+    _, capped = run("07", 3, **{"points.max_translation": 0.0})
+    _, plain = run("07", 3, **{"points.weight": 0.0})
+    np.testing.assert_array_equal(capped[1].pose, plain[1].pose)  # the first motion has no alignment to start from
+    assert all(np.abs(a.delta - b.delta).max() > 1e-9 for a, b in zip(capped[2:], plain[2:]))
 
 
 def test_off_below_full_resolution_unless_asked():
