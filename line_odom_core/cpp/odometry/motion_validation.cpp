@@ -224,10 +224,9 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       // there is one end of a valley they cannot tell apart (a turn traded for a sideways shift along a street's
       // walls); the points measured it. Not the translations, which lean to standing still.
       outcome->failure = why;
+      const double tolerance = observability_push(outcome->best, lines_.config().validation);
       const int turns = aligned && frame.first_motion
-                            ? open & kRotationAxes &
-                                  resolved_axes(points_covariance, observability_push(outcome->best, lines_.config().validation),
-                                                obs.lever)
+                            ? open & kRotationAxes & resolved_axes(points_covariance, tolerance, obs.lever)
                             : 0;
       if (turns != 0) {
         Vec6 xi = motion_difference(by_points, outcome->best);
