@@ -13,7 +13,7 @@ exactly the points line_odom keeps, deskew off). With --strides s the pairs are 
 drive or a slower sensor (04 at 13 m/s: 2.6 m a scan at s = 2, beyond the candidates' 2 m). Printed per sequence,
 resolution and stride: the mean / max translation error (m) of those first motions, how many were more than 0.1 m
 off ("wrong"), and of those how many line_odom flagged (registration failed or held: "flagged") instead of
-reporting them as registered motions.
+reporting them as registered motions; and the mean / max rotation error (deg).
 """
 from __future__ import annotations
 
@@ -37,8 +37,14 @@ def translation_error(delta: np.ndarray, truth: np.ndarray) -> float:
     return float(np.linalg.norm((np.linalg.inv(truth) @ delta)[:3, 3]))
 
 
+def rotation_error(delta: np.ndarray, truth: np.ndarray) -> float:
+    """The angle (deg) of the rotation between the two motions."""
+    cosine = (np.trace((np.linalg.inv(truth) @ delta)[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+
+
 def first_motions(seq: str, level: int, kiss: bool, overrides: dict, stride: int = 1):
-    """Per frame pair k -> k + stride: (line_odom error, flagged, KISS-ICP error or None)."""
+    """Per frame pair k -> k + stride: ((line_odom t, r error), flagged, (KISS-ICP t, r error) or None)."""
     data = kitti_sequence(seq)
     config = line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides})
     out = []
@@ -57,8 +63,9 @@ def first_motions(seq: str, level: int, kiss: bool, overrides: dict, stride: int
                 pts = odom.downsampled_points(xyz) if level > 1 else xyz.astype(np.float64)
                 kiss_odom.register_frame(pts, np.zeros(len(pts)))
                 poses.append(kiss_odom.last_pose.copy())
-            kiss_error = translation_error(np.linalg.inv(poses[0]) @ poses[1], truth)
-        out.append((translation_error(result.delta, truth), flagged, kiss_error))
+            kiss_delta = np.linalg.inv(poses[0]) @ poses[1]
+            kiss_error = (translation_error(kiss_delta, truth), rotation_error(kiss_delta, truth))
+        out.append(((translation_error(result.delta, truth), rotation_error(result.delta, truth)), flagged, kiss_error))
     return out
 
 
@@ -76,18 +83,20 @@ def main(argv=None) -> int:
         parser.error("--strides: expected integers >= 1")
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; KISS-ICP "
           f"{'on' if kiss else 'off'}; a fresh start at every frame pair (step: of scans); wrong: > {WRONG} m off")
-    print(f"{'seq':4} {'res':5} {'step':>4} {'n':>2} | {'line_odom mean/max t [m]':>24} {'wrong':>5} {'flagged':>7} | "
-          f"{'KISS-ICP mean/max t [m]':>23} {'wrong':>5}")
+    print(f"{'seq':4} {'res':5} {'step':>4} {'n':>2} | {'line_odom mean/max t [m]':>24} {'wrong':>5} {'flagged':>7} "
+          f"{'r [deg]':>13} | {'KISS-ICP mean/max t [m]':>23} {'wrong':>5} {'r [deg]':>13}")
     for level, stride, seq in ((lv, st, sq) for lv in args.levels for st in args.strides for sq in args.kitti):
         rows = first_motions(seq, level, kiss, overrides, stride)
-        lo = np.array([r[0] for r in rows])
-        wrong = lo > WRONG
+        lo = np.array([r[0] for r in rows])  # columns: translation, rotation
+        wrong = lo[:, 0] > WRONG
         flagged = sum(1 for r, w in zip(rows, wrong) if w and r[1])
         line = (f"{seq:4} {LEVELS.get(level, f'1/{level * level}'):5} {stride:4} {len(rows):2} | "
-                f"{lo.mean():12.4f}/{lo.max():.4f} {int(wrong.sum()):5} {flagged:7} | ")
+                f"{lo[:, 0].mean():12.4f}/{lo[:, 0].max():.4f} {int(wrong.sum()):5} {flagged:7} "
+                f"{lo[:, 1].mean():7.3f}/{lo[:, 1].max():.3f} | ")
         if kiss:
             ks = np.array([r[2] for r in rows])
-            line += f"{ks.mean():11.4f}/{ks.max():.4f} {int((ks > WRONG).sum()):5}"
+            line += (f"{ks[:, 0].mean():11.4f}/{ks[:, 0].max():.4f} {int((ks[:, 0] > WRONG).sum()):5} "
+                     f"{ks[:, 1].mean():7.3f}/{ks[:, 1].max():.3f}")
         print(line, flush=True)
     return 0
 
