@@ -28,6 +28,7 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 import line_odom_core  # noqa: E402
 from accuracy import kiss_odometry, overrides_and_kiss  # noqa: E402
 from line_odom.datasets import kitti_sequence  # noqa: E402
+from line_odom.metrics import rotation_angle_deg  # noqa: E402
 
 WRONG = 0.1  # m: a first motion further than this from the ground truth's is wrong (KITTI moves 0.1-1.3 m/frame)
 LEVELS = {1: "full", 6: "1/36", 8: "1/64"}
@@ -39,8 +40,7 @@ def translation_error(delta: np.ndarray, truth: np.ndarray) -> float:
 
 def rotation_error(delta: np.ndarray, truth: np.ndarray) -> float:
     """The angle (deg) of the rotation between the two motions."""
-    cosine = (np.trace((np.linalg.inv(truth) @ delta)[:3, :3]) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+    return float(rotation_angle_deg((np.linalg.inv(truth) @ delta)[:3, :3]))
 
 
 def first_motions(seq: str, level: int, kiss: bool, overrides: dict, stride: int = 1):

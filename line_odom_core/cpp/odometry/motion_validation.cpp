@@ -37,7 +37,13 @@ int resolved_axes(const Mat6& covariance, double tolerance, double lever) {
   return axes;
 }
 
-
+// `from` moved to `to` along the axes of xi in `axes` (bits; motion_difference's chart at `from`), the others kept.
+RigidTransform along_axes(const RigidTransform& from, const RigidTransform& to, int axes) {
+  Vec6 xi = motion_difference(to, from);
+  for (int k = 0; k < 6; ++k)
+    if (!(axes >> k & 1)) xi[k] = 0.0;
+  return apply_motion_difference(xi, from);
+}
 
 // The translation axes along which the points' motion lies on the far side of standing still from the lines': a sparse
 // scan's alignment falls short of a motion (open_directions), it does not reverse it. `floor` is the lines' inlier
@@ -128,7 +134,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   // basin (its rings' points match the one-scan map's where they sat), even where they fit the right motion clearly
   // better (align_from_starts).
   const double reach = lines_.config().registration.max_translation;
-  auto aligned_before = [&](const MapAlignment& before) {
+  auto take_aligned_before = [&](const MapAlignment& before) {
     by_points = before.motion;
     matched = before.matched;
     points_covariance = before.covariance;
@@ -140,7 +146,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                                                         travel_directions(*frame.current), reach,
                                                         lines_.config().validation.significance, &by_points, &matched,
                                                         &points_covariance)
-       : frame.aligned_before ? aligned_before(*frame.aligned_before)
+       : frame.aligned_before ? take_aligned_before(*frame.aligned_before)
                               : point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points,
                                                 &matched, &points_covariance));
   st->points_aligned = aligned;
@@ -196,10 +202,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     const double tolerance = observability_push(outcome->best, lines_.config().validation);
     const int turns = resolved_axes(points_covariance, tolerance, held_obs.lever) & kRotationAxes;
     if (turns != 0) {
-      Vec6 xi = motion_difference(by_points, frame.prediction);
-      for (int k = 0; k < 6; ++k)
-        if (!(turns >> k & 1)) xi[k] = 0.0;
-      const RigidTransform turned = apply_motion_difference(xi, frame.prediction);
+      const RigidTransform turned = along_axes(frame.prediction, by_points, turns);
       const Mat6 projector = outcome->held_projector;
       if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
         outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "turn held at the point map's alignment";
@@ -229,10 +232,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                             ? open & kRotationAxes & resolved_axes(points_covariance, tolerance, obs.lever)
                             : 0;
       if (turns != 0) {
-        Vec6 xi = motion_difference(by_points, outcome->best);
-        for (int k = 0; k < 6; ++k)
-          if (!(turns >> k & 1)) xi[k] = 0.0;
-        outcome->best = apply_motion_difference(xi, outcome->best);
+        outcome->best = along_axes(outcome->best, by_points, turns);
         outcome->failure += ": " + axes_text(turns) + " taken from the point map's alignment";
       }
     } else if (aligned && open == kAllAxes) {
@@ -265,10 +265,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
 
 RigidTransform place_on_map(const Validated& validated, const RigidTransform& previous_place,
                             const RigidTransform& delta) {
-  Vec6 xi = motion_difference(validated.by_points, delta);
-  for (int k = 0; k < 6; ++k)
-    if (!(validated.resolved >> k & 1)) xi[k] = 0.0;
-  return previous_place * apply_motion_difference(xi, delta);
+  return previous_place * along_axes(delta, validated.by_points, validated.resolved);
 }
 
 }  // namespace line_odom

@@ -79,10 +79,10 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
     double start_cost = std::numeric_limits<double>::infinity();
     for (int k = -steps; k <= steps; ++k) {
       if (k == 0) continue;
-      RigidTransform shifted = prediction;
-      shifted.t += k * step * direction;
-      const double c = point_cost(map_, aligned_points, previous_pose * shifted, sigma);
-      if (c < start_cost) start_cost = c, start = shifted;
+      RigidTransform candidate = prediction;
+      candidate.t += k * step * direction;
+      const double c = point_cost(map_, aligned_points, previous_pose * candidate, sigma);
+      if (c < start_cost) start_cost = c, start = candidate;
     }
     if (!std::isfinite(start_cost)) continue;
     const PointAlignment other = align_points(map_, aligned_points, previous_pose * start, sigma, options_.alignment);
