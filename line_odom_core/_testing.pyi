@@ -35,3 +35,10 @@ def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...  # Od
 # (-1 where none).
 def voxel_map_nearest(points: npt.ArrayLike, voxel: float, max_points_per_voxel: int, queries: npt.ArrayLike,
                       max_distance: float) -> tuple[npt.NDArray[np.float64], list[int]]: ...
+
+# The candidate search (candidates.hpp) of the lines of frame a (segments (N, 6), normals (N, 3), 0 where unknown)
+# against those of frame b moved by each guess (4x4) within its distance, in turn on one index: per guess the pairs
+# (index in a, index in b, segment distance).
+def candidate_pairs(segments_a: npt.ArrayLike, normals_a: npt.ArrayLike, segments_b: npt.ArrayLike,
+                    normals_b: npt.ArrayLike, guesses: list[npt.ArrayLike], max_distances: list[float],
+                    max_pairs_per_line: int) -> list[list[tuple[int, int, float]]]: ...

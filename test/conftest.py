@@ -27,6 +27,7 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
     "test_settings_table.py": ("unit",),
     "test_static_tf.py": ("unit",),
     # the engine on synthetic inputs
+    "test_candidates.py": ("engine",),
     "test_estimate_motion.py": ("engine",),
     "test_point_map.py": ("engine",),
     "test_fuzz_engine.py": ("engine",),

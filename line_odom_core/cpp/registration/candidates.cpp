@@ -147,11 +147,12 @@ class SegmentGrid {
 // grids up to full-resolution KITTI frames registering ~3000 lines.
 constexpr double kBruteForcePairs = 2e6;
 constexpr double kMaxCells = 1 << 21;  // grid size bound: coarser cells beyond (any frame costs a bounded grid)
-// The near search for a line's closest partners (max_pairs_per_line > 0) reaches this share of the pass distance,
-// on a grid kept small (coarser cells beyond): on full KITTI frames a near grid of 2^19 cells cost more time in
-// memory traffic than its finer cells saved.
+// The search for a line's closest partners (max_pairs_per_line > 0) looks within this share of the pass distance
+// first.
 constexpr double kNearFraction = 0.25;
-constexpr double kNearMaxCells = 1 << 17;
+// The lines near a line of b are listed within the pass distance and this share of it beyond: a later pass whose guess
+// moved the segment less than that re-tests the listed lines instead of searching them again.
+constexpr double kListMargin = 0.1;
 // A grid with cells up to this many times coarser than a pass asks for serves it: on full KITTI frames the 0.5 m pass
 // visiting more partners in the 1 m pass's grid (1.5 m cells) costs less than building a grid of 0.75 m cells.
 constexpr double kGridReuse = 2.0;
@@ -352,13 +353,12 @@ struct CandidateIndex::Lines {
   std::vector<Nearby> nearby;
   std::vector<int> partner_ids;  // lines of frame a whose boxes come near the line of b, before the filters
   std::vector<std::pair<double, int>> best;
-  // The box scan of the first match against lines_b: per line of b its float reach and the lines whose float boxes
-  // reached into it. A later match of the same lines_b whose reach lies within the listed one (the guess moved the
-  // segment less than the distance shrank) re-tests the listed lines instead of scanning all boxes: the same lines
-  // in the same order.
+  // The lines listed near the lines of lines_b (match_lines): per line of b its moved segment when listed, the
+  // distance listed within and the range of its listed lines (-1, -1 before a listing).
   const std::vector<LineFeature>* listed_b = nullptr;
   std::uint64_t listed_fingerprint = 0;  // of listed_b's segments: another scan at the same address is not it
-  std::vector<std::array<float, 6>> listed_reach;
+  std::vector<Segment> listed_at;
+  std::vector<double> listed_within;
   std::vector<std::pair<int, int>> listed_range;  // [begin, end) in listed_ids
   std::vector<int> listed_ids;
 
@@ -395,10 +395,6 @@ struct CandidateIndex::Lines {
     partner_ids.resize(lines.size() + 3);  // the same, padded to whole groups of 4 for filter_partners
   }
 
-  // The reach of the grid grid(max_distance, max_cells) would return (0 without one).
-  double reach_for(double max_distance, double max_cells) const {
-    return have_bounds ? SegmentGrid::cell_for(hi - lo, max_distance, max_cells) / 1.5 : 0.0;
-  }
   // A grid for segments within max_distance with at most about max_cells cells: one built before whose cells are
   // at least as large and at most kGridReuse times larger, else a new one. Requires have_bounds.
   const SegmentGrid& grid(double max_distance, double max_cells) {
@@ -547,38 +543,28 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   // (Usable lines are finite: they always have bounds.)
   const bool brute_force =
       static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs || !indexed.have_bounds;
-  // The near search reaches as far as its grid's cells allow (a coarsened grid reaches farther at the same cost);
-  // it is worth a grid only when that is short of the pass distance.
-  double near_distance = -1.0;
-  const double near_build = opt.max_distance * kNearFraction * (1.0 + 1e-6);
-  const SegmentGrid* near_grid = nullptr;
-  if (k > 0 && !brute_force && indexed.reach_for(near_build, kNearMaxCells) < opt.max_distance) {
-    near_grid = &indexed.grid(near_build, kNearMaxCells);
-    // It must hold every line the pass grid holds (only absurdly long ones can be missing).
-    if (!near_grid->left_out_any()) near_distance = near_grid->reach() / (1.0 + 1e-6);
+  // Each line of b lists the lines of frame a within list_distance of its moved segment once (a box scan, or the
+  // cells of a grid); a gather within `distance` re-tests the listed lines while the segment has moved less than
+  // the listing's distance - `distance` since (then every line within `distance` of it now was listed).
+  const double list_distance = opt.max_distance * (1.0 + kListMargin);
+  const double list_gap = list_distance * (1.0 + 1e-9) + 1e-9;
+  const std::uint64_t fingerprint = segments_fingerprint(lines_b);
+  if (indexed.listed_b != &lines_b || indexed.listed_fingerprint != fingerprint) {
+    indexed.listed_b = &lines_b;
+    indexed.listed_fingerprint = fingerprint;
+    indexed.listed_at.assign(lines_b.size(), {});
+    indexed.listed_within.assign(lines_b.size(), 0.0);
+    indexed.listed_range.assign(lines_b.size(), {-1, -1});
+    indexed.listed_ids.clear();
   }
   std::vector<int>& last_seen = indexed.last_seen;
   int& stamp = indexed.stamp;
   std::uint8_t* const overlap = indexed.overlap.data();
-  const std::uint64_t fingerprint = brute_force ? segments_fingerprint(lines_b) : 0;
-  const bool listing = brute_force && (indexed.listed_b != &lines_b || indexed.listed_fingerprint != fingerprint);
-  if (listing) {
-    indexed.listed_b = &lines_b;
-    indexed.listed_fingerprint = fingerprint;
-    indexed.listed_reach.assign(lines_b.size(), {});
-    indexed.listed_range.assign(lines_b.size(), {0, 0});
-    indexed.listed_ids.clear();
-  }
   Nearby* const nearby = indexed.nearby.data();
   size_t nearby_count = 0;
   std::vector<std::pair<double, int>>& best = indexed.best;
   // Grids are built for a slightly larger distance: a partner measured within the distance is certainly found.
-  const SegmentGrid* pass_grid_built = nullptr;
-  auto pass_grid = [&]() -> const SegmentGrid* {
-    if (brute_force) return nullptr;
-    if (!pass_grid_built) pass_grid_built = &indexed.grid(opt.max_distance * (1.0 + 1e-6), kMaxCells);
-    return pass_grid_built;
-  };
+  const SegmentGrid* list_grid = nullptr;
   for (int ib = 0; ib < static_cast<int>(lines_b.size()); ++ib) {
     const LineFeature& lb = lines_b[ib];
     if (!lb.segment.a.allFinite() || !lb.segment.b.allFinite() || !lb.line.d.allFinite()) continue;
@@ -590,6 +576,21 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     const Vec3 sb_lo = sb.a.cwiseMin(sb.b), sb_hi = sb.a.cwiseMax(sb.b);
     const double sb_magnitude = std::max(sb_lo.cwiseAbs().maxCoeff(), sb_hi.cwiseAbs().maxCoeff());
     const SegmentSpan sb_span = SegmentSpan::of(sb);
+    // The float box of sb widened by `gap`, rounded outwards: (hi x y z, lo x y z).
+    auto box_reach = [&](double gap) {
+      std::array<float, 6> reach;
+      for (int c = 0; c < 3; ++c) {
+        reach[c] = IndexedLines::round_up(sb_hi[c] + gap + 1e-9);
+        reach[3 + c] = IndexedLines::round_down(sb_lo[c] - gap - 1e-9);
+      }
+      return reach;
+    };
+    // A point of sb is at most `moved` from the point at the same place along the listed segment (the segments'
+    // points are convex combinations of their endpoints).
+    const Segment& listed_at = indexed.listed_at[ib];
+    double moved = indexed.listed_range[ib].first < 0
+                       ? std::numeric_limits<double>::infinity()
+                       : std::max((sb.a - listed_at.a).norm(), (sb.b - listed_at.b).norm());
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
     PartnerQuery query;
@@ -603,34 +604,19 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     query.normal_known = nb_known;
     query.max_cos_lines = max_cos_lines;
     query.min_cos_normals = min_cos_normals;
-    auto gather = [&](double distance, const SegmentGrid* grid) {
+    auto gather = [&](double distance) {
       const double box_gap = distance * (1.0 + 1e-9) + 1e-9;
       query.box_gap = box_gap;
       int* const ids = indexed.partner_ids.data();
       size_t id_count = 0;
-      if (brute_force) {
-        // Few pairs: a scan of the boxes costs less than the grid's cell lists.
-        std::array<float, 6> reach;
-        for (int c = 0; c < 3; ++c) {
-          reach[c] = IndexedLines::round_up(sb_hi[c] + box_gap + 1e-9);
-          reach[3 + c] = IndexedLines::round_down(sb_lo[c] - box_gap - 1e-9);
-        }
-        const std::array<float, 6>& listed = indexed.listed_reach[ib];
-        if (!listing && reach[0] <= listed[0] && reach[1] <= listed[1] && reach[2] <= listed[2] &&
-            reach[3] >= listed[3] && reach[4] >= listed[4] && reach[5] >= listed[5]) {
-          // Every box reaching into `reach` reaches into the listed reach: re-test the listed boxes.
-          const auto [begin, end] = indexed.listed_range[ib];
-          const FloatLanes reach_hi = {reach[0], reach[1], reach[2], 0.0f};
-          const FloatLanes reach_lo = {reach[3], reach[4], reach[5], 0.0f};
-          for (int e = begin; e < end; ++e) {
-            const int ia = indexed.listed_ids[e];
-            const FloatBox& box = indexed.float_boxes[ia];
-            const FloatLaneMask inside = (box.lo <= reach_hi) & (box.hi >= reach_lo);
-            ids[id_count] = ia;
-            id_count += all_of_xyz(inside);
-          }
-        } else {
-          mark_box_overlaps(indexed.box_columns, reach, overlap);
+      if (!(moved + box_gap <= indexed.listed_within[ib])) {
+        // The lines whose float boxes reach into sb's box widened by list_gap: a scan of the boxes where pairs are
+        // few (it costs less than the grid's cell lists), else those in the grid's cells near sb.
+        const std::array<float, 6> wide = box_reach(list_gap);
+        const FloatLanes wide_hi = {wide[0], wide[1], wide[2], 0.0f}, wide_lo = {wide[3], wide[4], wide[5], 0.0f};
+        const int begin = static_cast<int>(indexed.listed_ids.size());
+        if (brute_force) {
+          mark_box_overlaps(indexed.box_columns, wide, overlap);
           const int na = static_cast<int>(usable_a.size());
           for (int block = 0; block < na; block += 32) {
             std::uint64_t words[4];  // overlaps are few: 32 boxes at a time, then only the set bytes
@@ -640,28 +626,38 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
               const int word = block + 8 * w;
 #if defined(__GNUC__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
               for (std::uint64_t any = words[w]; any != 0; any &= any - 1)
-                ids[id_count++] = word + (__builtin_ctzll(any) >> 3);
+                indexed.listed_ids.push_back(word + (__builtin_ctzll(any) >> 3));
 #else
               if (words[w] != 0)
                 for (int ia = word; ia < std::min(word + 8, na); ++ia)
-                  if (overlap[ia]) ids[id_count++] = ia;
+                  if (overlap[ia]) indexed.listed_ids.push_back(ia);
 #endif
             }
           }
-          if (listing) {
-            indexed.listed_reach[ib] = reach;
-            indexed.listed_range[ib] = {static_cast<int>(indexed.listed_ids.size()),
-                                        static_cast<int>(indexed.listed_ids.size() + id_count)};
-            indexed.listed_ids.insert(indexed.listed_ids.end(), ids, ids + id_count);
-          }
+        } else {
+          if (!list_grid) list_grid = &indexed.grid(list_distance * (1.0 + 1e-6), kMaxCells);
+          ++stamp;
+          list_grid->for_each_near(sb, [&](int ia) {  // the grid may visit a line more than once
+            if (last_seen[ia] == stamp) return;
+            last_seen[ia] = stamp;
+            const FloatBox& box = indexed.float_boxes[ia];
+            if (all_of_xyz((box.lo <= wide_hi) & (box.hi >= wide_lo))) indexed.listed_ids.push_back(ia);
+          });
         }
-      } else {
-        ++stamp;
-        grid->for_each_near(sb, [&](int ia) {  // the grid may visit a line more than once
-          if (last_seen[ia] == stamp) return;
-          last_seen[ia] = stamp;
-          ids[id_count++] = ia;
-        });
+        indexed.listed_at[ib] = sb;
+        indexed.listed_within[ib] = list_distance;
+        indexed.listed_range[ib] = {begin, static_cast<int>(indexed.listed_ids.size())};
+        moved = 0.0;
+      }
+      // The listed lines whose float boxes reach into sb's box widened by box_gap.
+      const std::array<float, 6> reach = box_reach(box_gap);
+      const FloatLanes reach_hi = {reach[0], reach[1], reach[2], 0.0f}, reach_lo = {reach[3], reach[4], reach[5], 0.0f};
+      const auto [begin, end] = indexed.listed_range[ib];
+      for (int e = begin; e < end; ++e) {
+        const int ia = indexed.listed_ids[e];
+        const FloatBox& box = indexed.float_boxes[ia];
+        ids[id_count] = ia;
+        id_count += all_of_xyz((box.lo <= reach_hi) & (box.hi >= reach_lo));
       }
       for (size_t pad = id_count; pad < id_count + 3; ++pad) ids[pad] = 0;
       nearby_count = filter_partners(indexed.columns, ids, id_count, query, nearby);
@@ -670,16 +666,15 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
     if (k > 0) {
       // Most lines have their k closest partners much nearer than the pass distance: look there first. When
       // k partners lie within near_distance, no partner farther away can displace them.
-      if (near_distance > 0.0 && near_distance < opt.max_distance) {
-        gather(near_distance, near_grid);
-        closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, near_distance, k, &best);
-      }
+      const double near_distance = opt.max_distance * kNearFraction;
+      gather(near_distance);
+      closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, near_distance, k, &best);
       if (static_cast<int>(best.size()) < k) {
-        gather(opt.max_distance, pass_grid());
+        gather(opt.max_distance);
         closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, opt.max_distance, k, &best);
       }
     } else {
-      gather(opt.max_distance, pass_grid());
+      gather(opt.max_distance);
       for (size_t i = 0; i < nearby_count; i += 4) {
         const int count = static_cast<int>(std::min<size_t>(4, nearby_count - i));
         int ids[4];

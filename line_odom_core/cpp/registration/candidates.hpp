@@ -34,8 +34,8 @@ struct CandidateStats {
 double segment_distance(const Segment& s1, const Segment& s2);
 
 // The lines of frame a (the previous scan, never moved) indexed once for every pass matched against it: records,
-// carriers, box columns, and the segment grids the passes ask for (a grid is reused by any later pass that needs
-// the same cells). `a` must outlive the index, unchanged.
+// carriers, box columns, the segment grids the passes ask for (a grid is reused by any later pass that needs
+// the same cells) and the lines listed near the current scan's. `a` must outlive the index, unchanged.
 class CandidateIndex {
  public:
   explicit CandidateIndex(const ScanFeatures& a);
@@ -54,8 +54,9 @@ class CandidateIndex {
 
 // Frame a = previous scan (indexed), b = current scan; T_ab_guess maps b into a. Fills `out` (line pairs with
 // segments, weights and clusters; plane pairs) in a deterministic order, the same for a fresh or a reused index.
-// Repeated calls with the same b object (unchanged in between, as in the passes of one frame) re-check the boxes the
-// first call found near each line of b instead of scanning all, where the guesses allow: the same result.
+// Repeated calls with the same b object (unchanged in between, as in the passes of one frame) re-test the lines listed
+// near each line of b by an earlier call while its guess moved the line less than the listing's margin: the same
+// result.
 // With a pool of several threads, the H x V and the V x H pairs are searched on two of them (the same result).
 void build_candidates(CandidateIndex& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
                       const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr,

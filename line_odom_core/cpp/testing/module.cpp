@@ -5,9 +5,12 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <array>
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <optional>
+#include <tuple>
 #include <string>
 #include <vector>
 
@@ -16,6 +19,7 @@
 #include "odometry/engine_settings.hpp"
 #include "odometry/motion_persistence.hpp"
 #include "odometry/odometry.hpp"
+#include "registration/candidates.hpp"
 #include "registration/voxel_points.hpp"
 #include "testing/ransac_examples.hpp"
 #include "testing/solver_benchmark.hpp"
@@ -197,6 +201,57 @@ py::tuple voxel_map_nearest(const Points& points, double voxel, int max_points_p
   return py::make_tuple(nearest, voxels);
 }
 
+using Segments = Eigen::Matrix<double, Eigen::Dynamic, 6, Eigen::RowMajor>;
+using Pose = Eigen::Matrix<double, 4, 4, Eigen::RowMajor>;
+
+// Lines with segments (N, 6: a, b) and surface normals (N, 3; zero where unknown).
+std::vector<line_odom::LineFeature> line_features(const char* name, const Segments& segments, const Points& normals) {
+  if (normals.rows() != segments.rows())
+    throw py::value_error(std::string(name) + ": expected one normal per segment");
+  std::vector<line_odom::LineFeature> lines(static_cast<std::size_t>(segments.rows()));
+  for (Eigen::Index i = 0; i < segments.rows(); ++i) {
+    line_odom::LineFeature& l = lines[static_cast<std::size_t>(i)];
+    l.segment = {segments.row(i).head<3>().transpose(), segments.row(i).tail<3>().transpose()};
+    l.line = l.segment.line();
+    l.normal = normals.row(i).transpose();
+  }
+  return lines;
+}
+
+// build_candidates (candidates.hpp) of the H-lines of frame a against the V-lines of frame b, one call per guess and
+// distance in order on one index and the same b (as the passes of a frame): per call the pairs (index in a, index in
+// b, distance).
+std::vector<std::vector<std::tuple<int, int, double>>> candidate_pairs(
+    const Segments& segments_a, const Points& normals_a, const Segments& segments_b, const Points& normals_b,
+    const std::vector<Pose>& guesses, const std::vector<double>& max_distances, int max_pairs_per_line) {
+  if (max_distances.size() != guesses.size())
+    throw py::value_error("max_distances: expected one distance per guess");
+  line_odom::ScanFeatures a, b;
+  a.h_lines = line_features("normals_a", segments_a, normals_a);
+  b.v_lines = line_features("normals_b", segments_b, normals_b);
+  line_odom::CandidateOptions options;
+  options.max_pairs_per_line = max_pairs_per_line;
+  line_odom::CandidateIndex index(a);
+  std::map<std::array<double, 6>, int> index_of;  // segment of frame a -> its index
+  auto key = [](const line_odom::Segment& s) {
+    return std::array<double, 6>{s.a.x(), s.a.y(), s.a.z(), s.b.x(), s.b.y(), s.b.z()};
+  };
+  for (std::size_t i = 0; i < a.h_lines.size(); ++i) index_of.emplace(key(a.h_lines[i].segment), static_cast<int>(i));
+  std::vector<std::vector<std::tuple<int, int, double>>> out;
+  for (std::size_t call = 0; call < guesses.size(); ++call) {
+    const line_odom::RigidTransform T = line_odom::RigidTransform::from_matrix(guesses[call]);
+    options.max_distance = max_distances[call];
+    line_odom::Correspondences corr;
+    line_odom::build_candidates(index, b, T, options, &corr);
+    auto& pairs = out.emplace_back();
+    for (std::size_t i = 0; i < corr.lines_a.size(); ++i) {
+      pairs.emplace_back(index_of.at(key(corr.segments_a[i])), corr.lines_b_index[i],
+                         line_odom::segment_distance(corr.segments_a[i], corr.segments_b[i].moved(T)));
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_testing, m) {
@@ -230,6 +285,11 @@ PYBIND11_MODULE(_testing, m) {
         py::arg("queries"), py::arg("max_distance"),
         "The local point map's nearest-point lookup (voxel_points.hpp) over `points` (N, 3) in cubes of `voxel`: for each "
         "query (M, 3), the map point returned within max_distance (NaN where none) and its voxel's index (-1).");
+  m.def("candidate_pairs", &candidate_pairs, py::arg("segments_a"), py::arg("normals_a"), py::arg("segments_b"),
+        py::arg("normals_b"), py::arg("guesses"), py::arg("max_distances"), py::arg("max_pairs_per_line"),
+        "The candidate search (candidates.hpp) of the lines of frame a (segments (N, 6), normals (N, 3), 0 where "
+        "unknown) against those of frame b moved by each guess (4x4) within its distance, in turn on one index: per "
+        "guess the pairs (index in a, index in b, segment distance).");
   m.def("odometry_config_defaults",
         []() { return py_settings::to_dict(line_odom::odometry_settings(), line_odom::OdometryConfig{}); },
         "Every dotted engine setting with the default of its OdometryConfig member.");
