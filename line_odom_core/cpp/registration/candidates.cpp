@@ -543,9 +543,7 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
   // (Usable lines are finite: they always have bounds.)
   const bool brute_force =
       static_cast<double>(usable_a.size()) * lines_b.size() <= kBruteForcePairs || !indexed.have_bounds;
-  // Each line of b lists the lines of frame a within list_distance of its moved segment once (a box scan, or the
-  // cells of a grid); a gather within `distance` re-tests the listed lines while the segment has moved less than
-  // the listing's distance - `distance` since (then every line within `distance` of it now was listed).
+  // The listings of lines_b's lines (below) belong to lines_b: another scan starts them afresh.
   const double list_distance = opt.max_distance * (1.0 + kListMargin);
   const double list_gap = list_distance * (1.0 + 1e-9) + 1e-9;
   const std::uint64_t fingerprint = segments_fingerprint(lines_b);
@@ -585,12 +583,60 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       }
       return reach;
     };
-    // A point of sb is at most `moved` from the point at the same place along the listed segment (the segments'
-    // points are convex combinations of their endpoints).
-    const Segment& listed_at = indexed.listed_at[ib];
-    double moved = indexed.listed_range[ib].first < 0
-                       ? std::numeric_limits<double>::infinity()
-                       : std::max((sb.a - listed_at.a).norm(), (sb.b - listed_at.b).norm());
+    // Calls emit(ia) for the lines whose float boxes reach into sb's box widened by `gap`: a scan of the boxes where
+    // pairs are few (it costs less than the grid's cell lists), else those in the grid's cells near sb.
+    auto collect = [&](double gap, auto&& emit) {
+      const std::array<float, 6> wide = box_reach(gap);
+      if (brute_force) {
+        mark_box_overlaps(indexed.box_columns, wide, overlap);
+        const int na = static_cast<int>(usable_a.size());
+        for (int block = 0; block < na; block += 32) {
+          std::uint64_t words[4];  // overlaps are few: 32 boxes at a time, then only the set bytes
+          std::memcpy(words, overlap + block, sizeof words);
+          if ((words[0] | words[1] | words[2] | words[3]) == 0) continue;
+          for (int w = 0; w < 4; ++w) {
+            const int word = block + 8 * w;
+#if defined(__GNUC__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+            for (std::uint64_t any = words[w]; any != 0; any &= any - 1) emit(word + (__builtin_ctzll(any) >> 3));
+#else
+            if (words[w] != 0)
+              for (int ia = word; ia < std::min(word + 8, na); ++ia)
+                if (overlap[ia]) emit(ia);
+#endif
+          }
+        }
+        return;
+      }
+      if (!list_grid) list_grid = &indexed.grid(list_distance * (1.0 + 1e-6), kMaxCells);
+      const FloatLanes wide_hi = {wide[0], wide[1], wide[2], 0.0f}, wide_lo = {wide[3], wide[4], wide[5], 0.0f};
+      ++stamp;
+      list_grid->for_each_near(sb, [&](int ia) {  // the grid may visit a line more than once
+        if (last_seen[ia] == stamp) return;
+        last_seen[ia] = stamp;
+        const FloatBox& box = indexed.float_boxes[ia];
+        if (all_of_xyz((box.lo <= wide_hi) & (box.hi >= wide_lo))) emit(ia);
+      });
+    };
+    // The lines near sb: its listing by an earlier call, while sb has moved less than that listing's distance less
+    // the pass distance since (a point of sb is at most that far from the point at the same place along the listed
+    // segment: the segments' points are convex combinations of their endpoints). A line without a listing is listed
+    // now (the passes of a frame move it little); one whose listing is out of reach (a search's guesses far apart)
+    // is searched without.
+    const double pass_gap = opt.max_distance * (1.0 + 1e-9) + 1e-9;
+    std::pair<int, int> range = indexed.listed_range[ib];
+    bool listed = false;
+    if (range.first < 0) {
+      const int begin = static_cast<int>(indexed.listed_ids.size());
+      collect(list_gap, [&](int ia) { indexed.listed_ids.push_back(ia); });
+      range = {begin, static_cast<int>(indexed.listed_ids.size())};
+      indexed.listed_at[ib] = sb;
+      indexed.listed_within[ib] = list_distance;
+      indexed.listed_range[ib] = range;
+      listed = true;
+    } else {
+      const Segment& at = indexed.listed_at[ib];
+      listed = pass_gap + std::max((sb.a - at.a).norm(), (sb.b - at.b).norm()) <= indexed.listed_within[ib];
+    }
     // Fills `nearby` with the lines of frame a that pass the filters and whose boxes come within `distance`
     // (a superset of the partners within `distance`).
     PartnerQuery query;
@@ -609,66 +655,32 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
       query.box_gap = box_gap;
       int* const ids = indexed.partner_ids.data();
       size_t id_count = 0;
-      if (!(moved + box_gap <= indexed.listed_within[ib])) {
-        // The lines whose float boxes reach into sb's box widened by list_gap: a scan of the boxes where pairs are
-        // few (it costs less than the grid's cell lists), else those in the grid's cells near sb.
-        const std::array<float, 6> wide = box_reach(list_gap);
-        const FloatLanes wide_hi = {wide[0], wide[1], wide[2], 0.0f}, wide_lo = {wide[3], wide[4], wide[5], 0.0f};
-        const int begin = static_cast<int>(indexed.listed_ids.size());
-        if (brute_force) {
-          mark_box_overlaps(indexed.box_columns, wide, overlap);
-          const int na = static_cast<int>(usable_a.size());
-          for (int block = 0; block < na; block += 32) {
-            std::uint64_t words[4];  // overlaps are few: 32 boxes at a time, then only the set bytes
-            std::memcpy(words, overlap + block, sizeof words);
-            if ((words[0] | words[1] | words[2] | words[3]) == 0) continue;
-            for (int w = 0; w < 4; ++w) {
-              const int word = block + 8 * w;
-#if defined(__GNUC__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-              for (std::uint64_t any = words[w]; any != 0; any &= any - 1)
-                indexed.listed_ids.push_back(word + (__builtin_ctzll(any) >> 3));
-#else
-              if (words[w] != 0)
-                for (int ia = word; ia < std::min(word + 8, na); ++ia)
-                  if (overlap[ia]) indexed.listed_ids.push_back(ia);
-#endif
-            }
-          }
-        } else {
-          if (!list_grid) list_grid = &indexed.grid(list_distance * (1.0 + 1e-6), kMaxCells);
-          ++stamp;
-          list_grid->for_each_near(sb, [&](int ia) {  // the grid may visit a line more than once
-            if (last_seen[ia] == stamp) return;
-            last_seen[ia] = stamp;
-            const FloatBox& box = indexed.float_boxes[ia];
-            if (all_of_xyz((box.lo <= wide_hi) & (box.hi >= wide_lo))) indexed.listed_ids.push_back(ia);
-          });
+      if (listed) {
+        // The listed lines whose float boxes reach into sb's box widened by box_gap.
+        const std::array<float, 6> reach = box_reach(box_gap);
+        const FloatLanes reach_hi = {reach[0], reach[1], reach[2], 0.0f};
+        const FloatLanes reach_lo = {reach[3], reach[4], reach[5], 0.0f};
+        for (int e = range.first; e < range.second; ++e) {
+          const int ia = indexed.listed_ids[e];
+          const FloatBox& box = indexed.float_boxes[ia];
+          ids[id_count] = ia;
+          id_count += all_of_xyz((box.lo <= reach_hi) & (box.hi >= reach_lo));
         }
-        indexed.listed_at[ib] = sb;
-        indexed.listed_within[ib] = list_distance;
-        indexed.listed_range[ib] = {begin, static_cast<int>(indexed.listed_ids.size())};
-        moved = 0.0;
-      }
-      // The listed lines whose float boxes reach into sb's box widened by box_gap.
-      const std::array<float, 6> reach = box_reach(box_gap);
-      const FloatLanes reach_hi = {reach[0], reach[1], reach[2], 0.0f}, reach_lo = {reach[3], reach[4], reach[5], 0.0f};
-      const auto [begin, end] = indexed.listed_range[ib];
-      for (int e = begin; e < end; ++e) {
-        const int ia = indexed.listed_ids[e];
-        const FloatBox& box = indexed.float_boxes[ia];
-        ids[id_count] = ia;
-        id_count += all_of_xyz((box.lo <= reach_hi) & (box.hi >= reach_lo));
+      } else {
+        collect(box_gap, [&](int ia) { ids[id_count++] = ia; });
       }
       for (size_t pad = id_count; pad < id_count + 3; ++pad) ids[pad] = 0;
       nearby_count = filter_partners(indexed.columns, ids, id_count, query, nearby);
     };
     best.clear();
     if (k > 0) {
-      // Most lines have their k closest partners much nearer than the pass distance: look there first. When
-      // k partners lie within near_distance, no partner farther away can displace them.
+      // Most lines have their k closest partners much nearer than the pass distance: on a listing, look there first.
+      // When k partners lie within near_distance, no partner farther away can displace them.
       const double near_distance = opt.max_distance * kNearFraction;
-      gather(near_distance);
-      closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, near_distance, k, &best);
+      if (listed) {
+        gather(near_distance);
+        closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, near_distance, k, &best);
+      }
       if (static_cast<int>(best.size()) < k) {
         gather(opt.max_distance);
         closest_partners(nearby, nearby_count, indexed, sb_span, sb_magnitude, opt.max_distance, k, &best);
