@@ -60,8 +60,6 @@ class SegmentGrid {
       for (int y = -1; y <= 1; ++y)
         for (int z = -1; z <= 1; ++z) neighbours[i++] = x * sx + y * sy + z;
     for (int id = 0; id < static_cast<int>(lines.size()); ++id) {
-      const double len = lines[id]->segment.length();
-      left_out_any_ = left_out_any_ || (std::isfinite(len) && len > kMaxSamples * step_);
       for_each_sample_cell(lines[id]->segment, [&](int cell) {
         for (const int offset : neighbours) {
           const int c = cell + offset;
@@ -80,9 +78,6 @@ class SegmentGrid {
   }
 
   double cell() const { return cell_; }
-  double reach() const { return cell_ / 1.5; }  // segments closer than this have samples in neighbouring cells
-  // Whether a segment of finite length was left out as too long for the cells (see for_each_sample_cell).
-  bool left_out_any() const { return left_out_any_; }
 
   // Calls visit(id) for every bucketed segment with a sample in a cell next to a sample of `query`
   // (an id may be visited more than once).
@@ -137,7 +132,6 @@ class SegmentGrid {
 
   static constexpr double kMaxSamples = 4096.0;
   double cell_ = 1.0, step_ = 1.0, inverse_cell_ = 1.0;
-  bool left_out_any_ = false;
   Vec3 origin_ = Vec3::Zero();
   std::array<int, 3> size_{};
   std::vector<int> begin_, ids_;
