@@ -17,7 +17,8 @@ namespace {
 
 constexpr const char* kAxisNames[6] = {"x", "y", "z", "rx", "ry", "rz"};
 constexpr int kAllAxes = 0x3f;
-constexpr int kRotationAxes = 0x38;  // rx, ry, rz
+constexpr int kTranslationAxes = 0x07;  // x, y, z
+constexpr int kRotationAxes = 0x38;     // rx, ry, rz
 
 int count_axes(int axes) { return static_cast<int>(std::bitset<6>(static_cast<unsigned>(axes)).count()); }
 
@@ -43,6 +44,15 @@ RigidTransform along_axes(const RigidTransform& from, const RigidTransform& to, 
   for (int k = 0; k < 6; ++k)
     if (!(axes >> k & 1)) xi[k] = 0.0;
   return apply_motion_difference(xi, from);
+}
+
+// The axes of xi (bits) along which `a` and `b` lie farther apart than `tolerance` (rotations at `lever`).
+int axes_apart(const RigidTransform& a, const RigidTransform& b, double tolerance, double lever) {
+  const Vec6 difference = motion_difference(a, b);
+  int axes = 0;
+  for (int k = 0; k < 6; ++k)
+    if (std::abs(difference[k]) * (k < 3 ? 1.0 : lever) > tolerance) axes |= 1 << k;
+  return axes;
 }
 
 // The translation axes along which the points' motion lies on the far side of standing still from the lines': a sparse
@@ -103,14 +113,12 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   // where the points resolve the direction to a third of the tolerance (along a corridor, or the street a car drives
   // down, they may not: their motion there is no evidence).
   const double tolerance = observability_push(outcome.best, lines_.config().validation);
-  const Vec6 difference = motion_difference(outcome.best, *by_points);
   const int resolved = resolved_axes(points_covariance, tolerance, obs.lever);
   *reversed = reversed_translation(outcome.best, *by_points, points_covariance,
                                    lines_.config().ransac.inlier_threshold) &
               resolved;
   int open = *reversed;
-  for (int k = 0; judged && k < 6; ++k)
-    if ((resolved >> k & 1) && std::abs(difference[k]) * (k < 3 ? 1.0 : obs.lever) > tolerance) open |= 1 << k;
+  if (judged) open |= axes_apart(outcome.best, *by_points, tolerance, obs.lever) & resolved;
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction, a lean), and the points confirm the lines.
   if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {
@@ -158,10 +166,18 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   Correspondences corr;
   Observability obs;
   int open = kAllAxes;
-  int reversed = 0;
+  int reversed = 0, off_guess = 0;
   if (registered_in_full(*outcome)) {
     obs = observe(frame, *outcome, &corr);
     open = open_directions(frame, *outcome, obs, point_map, points, points_covariance, &reversed);
+    // A guess (wheel odometry) measured the distance travelled apart from the lines: a registration translated
+    // farther from it than the tolerance is the lines' other valley point, not the guess's error (a slow car among
+    // faster traffic: pairs on the passing cars support the motion mirrored about standing still, McNemar z above the
+    // significance). Not the rotations: a source's heading may miss a turn change the lines and the turn search find.
+    if (frame.guessed)
+      open |= off_guess = axes_apart(outcome->best, frame.prediction,
+                                     observability_push(outcome->best, lines_.config().validation), obs.lever) &
+                          kTranslationAxes;
   }
   const bool partly_registered = outcome->have && outcome->held_directions > 0;
   if (aligned && open != 0 && (frame.first_motion || (!registered_in_full(*outcome) && !partly_registered))) {
@@ -218,9 +234,10 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
     char why[160];
     std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
-                  (open & reversed) != 0 ? "the point map's alignment moves the other way"
-                  : judged               ? "the point map's alignment differs by more than validation.tolerance"
-                                         : "McNemar z under validation.significance");
+                  (open & reversed) != 0    ? "the point map's alignment moves the other way"
+                  : judged                  ? "the point map's alignment differs by more than validation.tolerance"
+                  : (open & off_guess) != 0 ? "the guess differs by more than validation.tolerance"
+                                            : "McNemar z under validation.significance");
     if (!judged && !frame.guessed && (open & reversed) == 0) {
       // Flagged: nothing better to hold the translations at (the prediction; a one-scan map's lean, not reversal).
       // A first motion's rotations the lines leave open are the points', where they resolve them: the lines' rotation
