@@ -174,10 +174,11 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     // farther from it than the tolerance is the lines' other valley point, not the guess's error (a slow car among
     // faster traffic: pairs on the passing cars support the motion mirrored about standing still, McNemar z above the
     // significance). Not the rotations: a source's heading may miss a turn change the lines and the turn search find.
-    if (frame.guessed)
-      open |= off_guess = axes_apart(outcome->best, frame.prediction,
-                                     observability_push(outcome->best, lines_.config().validation), obs.lever) &
-                          kTranslationAxes;
+    if (frame.guessed) {
+      const double tolerance = observability_push(outcome->best, lines_.config().validation);
+      off_guess = axes_apart(outcome->best, frame.prediction, tolerance, obs.lever) & kTranslationAxes;
+      open |= off_guess;
+    }
   }
   const bool partly_registered = outcome->have && outcome->held_directions > 0;
   if (aligned && open != 0 && (frame.first_motion || (!registered_in_full(*outcome) && !partly_registered))) {
