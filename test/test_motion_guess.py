@@ -9,14 +9,13 @@ from scipy.spatial.transform import Rotation
 
 import line_odom_core
 from line_odom import convert
-from line_odom.datasets import SHARED_DATA, KittiSequence, kitti_sequence, read_kitti_poses
+from line_odom.datasets import kitti_sequence
 from line_odom.motion_guess import GuessError, MotionGuess
 from line_odom.processor import NodeSettings, OdometryProcessor
 from line_odom_core.config import load_config
 
 from recording_engine import RecordingEngine
-
-STOP_AND_GO = SHARED_DATA / "kitti_raw_stop_and_go"
+from test_validation import stop_and_go
 
 
 def _T(xyz, rotvec=(0.0, 0.0, 0.0)):
@@ -177,8 +176,7 @@ def test_lines_that_contradict_the_guess_are_not_reported_as_good():
     # also support the motion mirrored about standing still (-0.19 m where the car moves +0.19 m, McNemar z above the
     # significance), and from a wheel odometry 3 % long the registration took it on frames 1 and 3, reported as good
     # (0.38 m off). A registration farther from the guess than validation.tolerance is held at the guess, flagged.
-    data = KittiSequence.open(STOP_AND_GO, 35)
-    data.poses = read_kitti_poses(STOP_AND_GO / "reference_poses.txt")[: len(data)]
+    data = stop_and_go(35)
     odom = line_odom_core.Odometry(line_odom_core.load_config("kitti_hdl64", {"downsample": 8}))
     guess_of = _wheel_odometry(1.03, 0.05)
     for i in range(15, 35):
