@@ -62,7 +62,8 @@ RigidTransform MotionPrediction::predict(double dt, bool constant_velocity, Vec6
 }
 
 void MotionPrediction::record(const RigidTransform& delta, const Mat6& held_projector, bool registered, double dt,
-                              bool first_motion, bool guessed, bool rotation_guessed, bool constant_velocity) {
+                              bool first_motion, bool guessed, bool rotation_guessed, bool constant_velocity,
+                              bool points_measured) {
   last_delta_ = delta;
   last_held_projector_ = held_projector;
   // A first motion held in full measured no direction of the velocity; a later frame measures what it registers.
@@ -70,6 +71,7 @@ void MotionPrediction::record(const RigidTransform& delta, const Mat6& held_proj
   if (guessed || !constant_velocity) unmeasured_projector_ = Mat6::Zero();
   else if (first_motion) unmeasured_projector_ = held_projector;
   else unmeasured_projector_ = common_directions(unmeasured_projector_, held_projector, kUnmeasuredCosine);
+  if (points_measured) unmeasured_projector_ = Mat6::Zero();
   if (rotation_guessed && !unmeasured_projector_.isZero()) {
     // A gyro measured the rotation: only translations can stay unmeasured.
     Mat6 translations = Mat6::Zero();

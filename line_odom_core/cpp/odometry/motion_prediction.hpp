@@ -27,9 +27,9 @@ class MotionPrediction {
 
   // A frame registered (or held) `delta` over `dt`; `held_projector`: onto its directions taken from the prediction.
   // `first_motion`: there was no velocity before it; `guessed`: the prediction was a caller's measurement;
-  // `rotation_guessed`: its rotation was a gyro's.
+  // `rotation_guessed`: its rotation was a gyro's; `points_measured`: the point map measured what was unmeasured.
   void record(const RigidTransform& delta, const Mat6& held_projector, bool registered, double dt, bool first_motion,
-              bool guessed, bool rotation_guessed, bool constant_velocity);
+              bool guessed, bool rotation_guessed, bool constant_velocity, bool points_measured = false);
   // A pause: the last motion says nothing about the next one (found afresh, as after a reset).
   void drop_velocity();
   void reset();

@@ -212,18 +212,30 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   if (judged && outcome->have && outcome->held_directions > 0) {
     // The rotations the lines leave open are held at the point map's alignment, which measured this scan, rather than
     // at the prediction, which only extrapolates the last frames (and kept a wrong turn rate along them), where the
-    // points resolve them. Not the translations: a sparse scan's alignment leans to the map's sampling, which is
-    // standing still's (open_directions).
+    // points resolve them. The translations only along the velocity's directions no frame measured (a first motion
+    // taken from the one-scan map's alignment, which leans to standing still): elsewhere the prediction carries a
+    // motion the lines measured, and a sparse scan's alignment leans to the map's sampling (open_directions).
     Correspondences held_corr;
     const Observability held_obs = observe(frame, *outcome, &held_corr);
     const double tolerance = observability_push(outcome->best, lines_.config().validation);
-    const int turns = resolved_axes(points_covariance, tolerance, held_obs.lever) & kRotationAxes;
-    if (turns != 0) {
-      const RigidTransform turned = along_axes(frame.prediction, by_points, turns);
+    const int resolved = resolved_axes(points_covariance, tolerance, held_obs.lever);
+    Vec6 step = motion_difference(by_points, frame.prediction);
+    for (int k = 3; k < 6; ++k)
+      if (!(resolved >> k & 1)) step[k] = 0.0;
+    Vec3 translation = step.head<3>();
+    for (int k = 0; k < 3; ++k)
+      if (!(resolved >> k & 1)) translation[k] = 0.0;
+    step.head<3>() = frame.unmeasured.topLeftCorner<3, 3>() * translation;
+    const bool measured = step.head<3>().norm() > 0.0;
+    if ((resolved & kRotationAxes) != 0 || measured) {
+      const RigidTransform turned = apply_motion_difference(step, frame.prediction);
       const Mat6 projector = outcome->held_projector;
       if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
-        outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "turn held at the point map's alignment";
+        outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") +
+                            (measured ? "held at the point map's alignment along the velocity no frame measured"
+                                      : "turn held at the point map's alignment");
         out.reference = turned;
+        out.measured_velocity = measured;
       }
     }
   }
@@ -257,17 +269,26 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       outcome->have = false;
       outcome->failure = std::string(why) + ": the point map's alignment taken";
       out.reference = by_points;
+      out.held_at_points = true;
     } else if ((aligned || frame.guessed) &&
                lines_.hold_directions(corr, LinePairTable(corr), reference, open, nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
       out.reference = reference;
       out.held_at_points = aligned;
+    } else if (judged) {
+      // The lines cannot be held there (their inliers are other pairs at the points' motion): the points' alignment,
+      // not the lines' unconfirmed motion, is what the next frames predict from.
+      outcome->have = false;
+      outcome->failure = std::string(why) + ": the point map's alignment taken";
+      out.reference = by_points;
+      out.held_at_points = true;
     } else {
       outcome->failure = why;
     }
   } else if (aligned && !outcome->have) {
     outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "the point map's alignment taken";
     out.reference = by_points;
+    out.held_at_points = true;
   }
   if (judged) {
     out.judged = true;

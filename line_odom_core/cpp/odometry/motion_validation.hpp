@@ -31,6 +31,7 @@ struct ValidationFrame {
   const std::vector<Vec3>* points = nullptr;  // this scan's, for the point map
   RigidTransform previous_pose;               // of the previous scan on the point map (PointMapTracker::place_of)
   RigidTransform prediction;
+  Mat6 unmeasured = Mat6::Zero();  // onto the prediction's directions no frame measured (MotionPrediction)
   bool first_motion = false;  // no velocity before this frame
   bool guessed = false;       // the prediction is a caller's measurement: open directions are held at it
   const MapAlignment* aligned_before = nullptr;  // nullable: this frame's alignment, made before the lines
@@ -40,7 +41,10 @@ struct ValidationFrame {
 struct Validated {
   RigidTransform reference;  // what the outcome's held directions (and a failed registration) take: the points'
                              // alignment where they were held at it or it was taken, else the prediction
-  bool held_at_points = false;  // the directions held were held at the point map's alignment, which measured them
+  // The directions held were held at the point map's alignment, which measured them (all six where it was taken).
+  bool held_at_points = false;
+  // The translations of the velocity no frame measured were taken from the point map's alignment: measured now.
+  bool measured_velocity = false;
   // Where the map judged this frame: the points' motion from the previous scan's place and the axes along which they
   // resolve it (a third of the tolerance).
   bool judged = false;

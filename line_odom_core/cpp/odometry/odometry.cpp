@@ -455,6 +455,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     check.points = &scan.points;
     check.previous_pose = s.point_map.place_of(s.pose);
     check.prediction = prediction;
+    check.unmeasured = unmeasured;
     check.first_motion = first_motion;
     check.guessed = guessed;
     if (align_first && sweep == nullptr) check.aligned_before = &aligned_before;  // points not deskewed again since
@@ -503,15 +504,15 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     s.pose.R = Eigen::Quaterniond(s.pose.R).normalized().toRotationMatrix();  // orthonormal over long runs
     s.last_inlier_weight = st.registered && !st.degenerate ? st.inlier_weight : 0.0;
     s.prediction.record(result.delta, fused.held_projector, st.registered, dt, first_motion, guessed, rotation_guessed,
-                        reg.constant_velocity);
+                        reg.constant_velocity, validated.measured_velocity);
     st.unmeasured_directions = static_cast<int>(std::lround(s.prediction.unmeasured_projector().trace()));
     s.sweeps.record_motion(result.delta, dt);
     // The map holds scans where the scans measured them: at the frame's pose when the lines registered it in full or
-    // it was held at the point map's alignment; a frame partly held at the prediction enters where its points put it,
+    // it was held at the point map's alignment or took it (also a first motion's: where the frame is reported); a frame partly held at the prediction enters where its points put it,
     // along the directions they resolve (built on at the held motion, that motion would later be confirmed by
     // itself). A sweep with point times enters only once deskewed at a known velocity: before the first motion it is
     // used as measured, smeared along the motion by up to a sweep's travel.
-    const bool at_pose = st.registered && (st.held_directions == 0 || validated.held_at_points);
+    const bool at_pose = (st.registered && st.held_directions == 0) || validated.held_at_points;
     if (s.point_map.enabled() && (at_pose || validated.judged) && (sweep == nullptr || !first_motion)) {
       Stopwatch stage;
       if (!at_pose) s.point_map.reanchor(s.pose, place_on_map(validated, check.previous_pose, result.delta));
