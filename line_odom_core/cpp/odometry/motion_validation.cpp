@@ -162,6 +162,11 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   const RigidTransform* points = aligned ? &by_points : nullptr;
   const bool judged = judges(frame, point_map, points);
   const RigidTransform reference = aligned ? by_points : frame.prediction;  // what open directions are held at
+  // Where the points' motion is taken, the scan enters the map there; a first motion only beyond the alignment
+  // kernel's width of standing still: the one-scan map's alignment may have fallen into standing still's basin (a
+  // sparse scan moving 1.5 m aligned at 0.07 m), and the map built on it would confirm that motion after.
+  const bool placed_by_points =
+      aligned && (!frame.first_motion || by_points.t.norm() > point_map.alignment_kernel_scale());
 
   Correspondences corr;
   Observability obs;
@@ -269,7 +274,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       outcome->have = false;
       outcome->failure = std::string(why) + ": the point map's alignment taken";
       out.reference = by_points;
-      out.held_at_points = true;
+      out.held_at_points = placed_by_points;
     } else if ((aligned || frame.guessed) &&
                lines_.hold_directions(corr, LinePairTable(corr), reference, open, nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
@@ -288,7 +293,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   } else if (aligned && !outcome->have) {
     outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "the point map's alignment taken";
     out.reference = by_points;
-    out.held_at_points = true;
+    out.held_at_points = placed_by_points;
   }
   if (judged) {
     out.judged = true;

@@ -51,6 +51,10 @@ std::vector<Vec3> PointMapTracker::thinned(const std::vector<Vec3>& points) cons
   return spread(voxel_downsample(points, kAlignedVoxel * voxel_), kAlignedPoints);
 }
 
+double PointMapTracker::alignment_kernel_scale() const {
+  return line_odom::alignment_kernel_scale(map_, model_error_.sigma());
+}
+
 bool PointMapTracker::align(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                             const RigidTransform& prediction, RigidTransform* motion, int* matched,
                             Mat6* covariance) const {
@@ -67,7 +71,7 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
   if (!ready()) return false;
   const std::vector<Vec3> aligned_points = thinned(points);
   const double sigma = model_error_.sigma();
-  const double step = alignment_kernel_scale(map_, sigma);
+  const double step = alignment_kernel_scale();
   const int steps = static_cast<int>(reach / step + 1e-9);
   const PointAlignment from_prediction =
       align_points(map_, aligned_points, previous_pose * prediction, sigma, options_.alignment);

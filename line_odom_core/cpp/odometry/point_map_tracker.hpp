@@ -21,6 +21,8 @@ class PointMapTracker {
   // Whether the last scan has a place on the map: it entered it. Without one, the map's place relative to the next
   // scan is unknown.
   bool holds_last_scan() const { return holds_last_scan_; }
+  // The width of the alignment's kernel now (alignment_kernel_scale): the basin of a start.
+  double alignment_kernel_scale() const;
   // Where a scan at odometry pose `pose` sits on the map: the map is the odometry frame until a scan whose motion was
   // partly held at the prediction enters where its points put it (reanchor).
   RigidTransform place_of(const RigidTransform& pose) const { return map_from_odometry_ * pose; }
