@@ -10,6 +10,7 @@
     .venv/bin/python bench/accuracy.py --only sim --sim-distortion --sim-speed-swing 0.5 4   # speed 5-15 m/s every 4 s
     .venv/bin/python bench/accuracy.py --seeds 8        # + line_odom's spread over RANSAC seeds 0-7
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-stride 2   # every 2nd scan: each scan moves twice as far
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
@@ -231,9 +232,21 @@ def peer_pose(odom) -> np.ndarray:
     return (odom.last_pose if hasattr(odom, "last_pose") else odom.poses[-1]).copy()
 
 
-def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: dict, beams: int = 0) -> Row:
-    """KITTI at downsampling step `level` with kitti_hdl64, or (beams > 0) with `beams` of its lasers with vlp16."""
-    data = open_run(seq, frames)
+def every_kth_scan(data, stride: int):
+    """Every `stride`-th scan of a run, its stamps kept: each scan moved `stride` times as far as in the run, as a
+    sensor that slow (or a drive that fast) would see it."""
+    if stride == 1:
+        return data
+    return dataclasses.replace(data, scan_paths=data.scan_paths[::stride], times=data.times[::stride],
+                               poses=data.poses[::stride])
+
+
+def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: dict, beams: int = 0,
+              stride: int = 1) -> Row:
+    """KITTI at downsampling step `level` with kitti_hdl64, or (beams > 0) with `beams` of its lasers with vlp16; every
+    `stride`-th scan (its row named "<run> x<stride>")."""
+    data = every_kth_scan(open_run(seq, frames), stride)
+    label = run_name(seq) + (f" x{stride}" if stride > 1 else "")
     config = (beams_config(beams, overrides) if beams else
               line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))
     odom = line_odom_core.Odometry(config)
@@ -265,18 +278,18 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     def errors(poses):
         t, r = frame_errors(np.array(poses), data.poses)
         if judged:  # translation against the scans' own motion, rotation against the ground truth
-            t = frame_errors(np.array(poses), dense_reference(run_name(seq), data))[0]
+            t = frame_errors(np.array(poses), dense_reference(label, data))[0]
         return t, r
 
     lo_frames = errors(lo.poses)
     kiss_frames = errors(kiss_run.poses) if kiss_run else None
     genz_frames = errors(genz_run.poses) if genz_run else None
-    row = Row("kitti", run_name(seq), level, len(data), summary(lo_frames), summary(kiss_frames) if kiss_frames else None,
+    row = Row("kitti", label, level, len(data), summary(lo_frames), summary(kiss_frames) if kiss_frames else None,
               steady_ms(lo.ms), steady_ms(kiss_run.ms) if kiss_run else None,
               sum(s["degenerate"] for s in lo.stats), beams, lo_frames, kiss_frames)
     row.genz = summary(genz_frames) if genz_frames else None
     row.genz_ms = steady_ms(genz_run.ms) if genz_run else None
-    reference = dense_reference(run_name(seq), data) if judged else data.poses
+    reference = dense_reference(label, data) if judged else data.poses
     row.motion = float(np.mean(frame_motions(reference)))
     row.flagged, row.gross = flagged_and_gross(lo.stats, lo_frames[0], reference)
     row.dense_reference = judged
@@ -649,7 +662,8 @@ def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> Non
         per_seed = [row]
         for seed in range(1, seeds):
             over = {**overrides, "seed": seed}
-            again = (run_kitti(row.sequence, row.level, args.kitti_frames, False, over, row.beams)
+            run, _, stride = row.sequence.partition(" x")
+            again = (run_kitti(run, row.level, args.kitti_frames, False, over, row.beams, int(stride or 1))
                      if row.dataset == "kitti"
                      else run_tum(row.level, args.tum_frames, False, over))
             per_seed.append(dataclasses.replace(again, kiss=row.kiss, kiss_ms=row.kiss_ms))
@@ -673,6 +687,9 @@ def main(argv=None) -> int:
     parser.add_argument("--kitti-levels", nargs="*", type=int, default=[1, 6, 8],
                         help="downsampling steps (none: skip)")
     parser.add_argument("--kitti-frames", type=int, default=None, help="frames per sequence (default all)")
+    parser.add_argument("--kitti-stride", type=int, default=1, metavar="K",
+                        help="every K-th scan of each run, stamps kept: each scan moves K times as far (rows named "
+                             "'<run> xK'; the runs beyond the speeds they hold)")
     parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16, 32], choices=(8, 16, 32),
                         help="also KITTI kept to this many of its 64 lasers (every 4th for 16), every azimuth step, "
                              "with the vlp16 preset: a real 16-beam-like scan (none: skip)")
@@ -713,12 +730,12 @@ def main(argv=None) -> int:
     if args.only in (None, "kitti"):
         for level in args.kitti_levels:
             for seq in args.kitti:
-                rows.append(run_kitti(seq, level, args.kitti_frames, kiss, overrides))
+                rows.append(run_kitti(seq, level, args.kitti_frames, kiss, overrides, stride=args.kitti_stride))
                 note_floor(rows[-1])
                 print(format_row(rows[-1]), flush=True)
         for beams in args.kitti_beams:
             for seq in args.kitti:
-                rows.append(run_kitti(seq, 1, args.kitti_frames, kiss, overrides, beams))
+                rows.append(run_kitti(seq, 1, args.kitti_frames, kiss, overrides, beams, args.kitti_stride))
                 print(format_row(rows[-1]), flush=True)
     if args.only in (None, "tum"):
         for level in args.tum_levels:

@@ -50,6 +50,18 @@ def test_accuracy_runs_a_directory_in_the_kitti_layout_with_flagged_and_gross_fr
     assert any(line.startswith("kitti 07") for line in out.splitlines())
 
 
+def test_accuracy_runs_every_kth_scan_as_a_faster_drive():
+    """--kitti-stride 2: every 2nd scan, stamps kept; each row is named '<run> x2' and judged against the same scans'
+    ground truth (so each frame's motion is the two scans' apart)."""
+    out = _run("bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--kitti-levels", "6", "--kitti-beams",
+               "--kitti-frames", "7", "--kitti-stride", "2", "--no-kiss")
+    rows = [line for line in out.splitlines() if line.startswith("kitti 07 x2") and "1/36" in line]
+    assert rows and rows[0].split()[4] == "4", out
+    data = accuracy.every_kth_scan(accuracy.open_run("07", 7), 2)
+    assert len(data) == 4 and np.allclose(data.times, accuracy.open_run("07", 7).times[::2])
+    assert np.allclose(data.poses[1], accuracy.open_run("07", 7).poses[2])
+
+
 def test_accuracy_refuses_a_directory_without_poses(tmp_path):
     (tmp_path / "velodyne").mkdir()
     source = SHARED_DATA / "kitti_raw_stop_and_go" / "velodyne" / "000000.bin"
