@@ -74,6 +74,17 @@ int reversed_translation(const RigidTransform& lines, const RigidTransform& poin
   return axes;
 }
 
+// The translation axes along which the points' motion lies within `basin` of standing still and short of the lines'
+// on the same side: where a sparse scan's alignment falls when it leans to the last scan's sampling, whatever the
+// motion beyond it.
+int leaning_translation(const RigidTransform& lines, const RigidTransform& points, double basin) {
+  int axes = 0;
+  for (int k = 0; k < 3; ++k)
+    if (std::abs(points.t[k]) < basin && points.t[k] * lines.t[k] >= 0.0 && std::abs(lines.t[k]) > std::abs(points.t[k]))
+      axes |= 1 << k;
+  return axes;
+}
+
 // The map judges a frame from its points' alignment when the previous scan entered the map (its place relative to
 // this scan is then known) and the frame is not a first motion.
 bool judges(const ValidationFrame& frame, const PointMapTracker& point_map, const RigidTransform* by_points) {
@@ -100,8 +111,9 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
 int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
                                       const Observability& obs, const PointMapTracker& point_map,
                                       const RigidTransform* by_points, const Mat6& points_covariance,
-                                      int* reversed) const {
+                                      int* reversed, int* leaning) const {
   *reversed = 0;
+  *leaning = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
   // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
@@ -118,14 +130,21 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
                                    lines_.config().ransac.inlier_threshold) &
               resolved;
   int open = *reversed;
-  if (judged) open |= axes_apart(outcome.best, *by_points, tolerance, obs.lever) & resolved;
+  int lean = 0;
+  if (judged) {
+    const int apart = axes_apart(outcome.best, *by_points, tolerance, obs.lever) & resolved;
+    lean = leaning_translation(outcome.best, *by_points, point_map.alignment_kernel_scale()) & apart;
+    open |= apart & ~lean;
+  }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction, a lean), and the points confirm the lines.
   if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {
     open = 0;
     *reversed = 0;
   }
-  return judged ? open : obs.unobserved | open;
+  // Where the points lean, they cannot tell the lines' motion from standing still: the lines' own test decides there.
+  *leaning = obs.unobserved & lean;
+  return judged ? open | *leaning : obs.unobserved | open;
 }
 
 Validated MotionValidation::validate(const ValidationFrame& frame, const PointMapTracker& point_map,
@@ -171,10 +190,10 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   Correspondences corr;
   Observability obs;
   int open = kAllAxes;
-  int reversed = 0, off_guess = 0;
+  int reversed = 0, off_guess = 0, leaning = 0;
   if (registered_in_full(*outcome)) {
     obs = observe(frame, *outcome, &corr);
-    open = open_directions(frame, *outcome, obs, point_map, points, points_covariance, &reversed);
+    open = open_directions(frame, *outcome, obs, point_map, points, points_covariance, &reversed, &leaning);
     // A guess (wheel odometry) measured the distance travelled apart from the lines: a registration translated
     // farther from it than the tolerance is the lines' other valley point, not the guess's error (a slow car among
     // faster traffic: pairs on the passing cars support the motion mirrored about standing still, McNemar z above the
@@ -199,11 +218,13 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     if (registered_in_full(other)) {
       Correspondences other_corr;
       const Observability other_obs = observe(frame, other, &other_corr);
-      int other_reversed = 0;
+      int other_reversed = 0, other_leaning = 0;
       const int other_open =
-          open_directions(frame, other, other_obs, point_map, points, points_covariance, &other_reversed);
+          open_directions(frame, other, other_obs, point_map, points, points_covariance, &other_reversed,
+                          &other_leaning);
       if (count_axes(other_open) < count_axes(open)) {
         reversed = other_reversed;
+        leaning = other_leaning;
         *outcome = std::move(other);
         corr = std::move(other_corr);
         obs = other_obs;
@@ -250,14 +271,17 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   if (registered_in_full(*outcome) && open != 0) {
     // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion
     // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
-    char why[160];
+    char why[200];
     std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
                   (open & reversed) != 0    ? "the point map's alignment moves the other way"
+                  : (open & ~leaning) == 0  ? "McNemar z under validation.significance, the point map's alignment "
+                                              "leaning to standing still"
                   : judged                  ? "the point map's alignment differs by more than validation.tolerance"
                   : (open & off_guess) != 0 ? "the guess differs by more than validation.tolerance"
                                             : "McNemar z under validation.significance");
-    if (!judged && !frame.guessed && (open & reversed) == 0) {
-      // Flagged: nothing better to hold the translations at (the prediction; a one-scan map's lean, not reversal).
+    if ((!judged && !frame.guessed && (open & reversed) == 0) || (judged && (open & ~leaning) == 0)) {
+      // Flagged: nothing better to hold the translations at (the prediction; a one-scan map's lean, not reversal; a
+      // judging map's alignment leaning to standing still where the lines do not pin the motion down).
       // A first motion's rotations the lines leave open are the points', where they resolve them: the lines' rotation
       // there is one end of a valley they cannot tell apart (a turn traded for a sideways shift along a street's
       // walls); the points measured it. Not the translations, which lean to standing still.
@@ -276,7 +300,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       out.reference = by_points;
       out.held_at_points = placed_by_points;
     } else if ((aligned || frame.guessed) &&
-               lines_.hold_directions(corr, LinePairTable(corr), reference, open, nullptr, outcome)) {
+               lines_.hold_directions(corr, LinePairTable(corr), reference, open & ~leaning, nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
       out.reference = reference;
       out.held_at_points = aligned;

@@ -74,7 +74,7 @@ class MotionValidation {
   // *reversed); without it, and at a first motion, those `obs` leaves open.
   int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
                       const PointMapTracker& point_map, const RigidTransform* by_points,
-                      const Mat6& points_covariance, int* reversed) const;
+                      const Mat6& points_covariance, int* reversed, int* leaning) const;
 
   const LineRegistration& lines_;
 };
