@@ -80,7 +80,8 @@ int reversed_translation(const RigidTransform& lines, const RigidTransform& poin
 int leaning_translation(const RigidTransform& lines, const RigidTransform& points, double basin) {
   int axes = 0;
   for (int k = 0; k < 3; ++k)
-    if (std::abs(points.t[k]) < basin && points.t[k] * lines.t[k] >= 0.0 && std::abs(lines.t[k]) > std::abs(points.t[k]))
+    if (std::abs(points.t[k]) < basin && points.t[k] * lines.t[k] >= 0.0 &&
+        std::abs(lines.t[k]) > std::abs(points.t[k]))
       axes |= 1 << k;
   return axes;
 }

@@ -41,7 +41,8 @@ struct ValidationFrame {
 struct Validated {
   RigidTransform reference;  // what the outcome's held directions (and a failed registration) take: the points'
                              // alignment where they were held at it or it was taken, else the prediction
-  // The directions held were held at the point map's alignment, which measured them (all six where it was taken).
+  // The directions held were held at the point map's alignment, which measured them (all six where it was taken; a
+  // first motion's only beyond the alignment kernel's width of standing still): the scan enters the map at its pose.
   bool held_at_points = false;
   // The translations of the velocity no frame measured were taken from the point map's alignment: measured now.
   bool measured_velocity = false;
@@ -71,7 +72,9 @@ class MotionValidation {
   // The directions (bits of xi) along which `outcome` is not confirmed: those the points' motion (nullable) puts
   // farther than the tolerance, where they resolve it (points_covariance) and do not fit the lines' motion as well,
   // and the resolved translation axes along which they lie on the other side of standing still (also into
-  // *reversed); without it, and at a first motion, those `obs` leaves open.
+  // *reversed); without it, and at a first motion, those `obs` leaves open. Where the points lie short of the lines'
+  // translation within the alignment kernel's width of standing still (a lean), they do not judge: those axes `obs`
+  // leaves open are open, into *leaning (flagged at the lines' motion, not held at the points').
   int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
                       const PointMapTracker& point_map, const RigidTransform* by_points,
                       const Mat6& points_covariance, int* reversed, int* leaning) const;
