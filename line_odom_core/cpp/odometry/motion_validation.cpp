@@ -86,6 +86,16 @@ int leaning_translation(const RigidTransform& lines, const RigidTransform& point
   return axes;
 }
 
+// The median distance of a scan's points from the sensor.
+double median_range(const std::vector<Vec3>& points) {
+  std::vector<double> ranges;
+  ranges.reserve(points.size());
+  for (const Vec3& p : points) ranges.push_back(p.norm());
+  if (ranges.empty()) return 0.0;
+  std::nth_element(ranges.begin(), ranges.begin() + ranges.size() / 2, ranges.end());
+  return ranges[ranges.size() / 2];
+}
+
 // The map judges a frame from its points' alignment when the previous scan entered the map (its place relative to
 // this scan is then known) and the frame is not a first motion.
 bool judges(const ValidationFrame& frame, const PointMapTracker& point_map, const RigidTransform* by_points) {
@@ -133,7 +143,10 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   int open = *reversed;
   int lean = 0;
   if (judged) {
-    const int apart = axes_apart(outcome.best, *by_points, tolerance, obs.lever) & resolved;
+    // A rotation apart by the tolerance at the scene's range, not only at the meeting lines' (on a sparse scan those
+    // near the sensor dominate, and a heading degrees off moves them less than the tolerance).
+    const double lever = std::max(obs.lever, median_range(*frame.points));
+    const int apart = axes_apart(outcome.best, *by_points, tolerance, lever) & resolved;
     lean = leaning_translation(outcome.best, *by_points, point_map.alignment_kernel_scale()) & apart;
     open |= apart & ~lean;
   }
