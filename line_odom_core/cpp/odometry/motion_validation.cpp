@@ -86,11 +86,13 @@ int leaning_translation(const RigidTransform& lines, const RigidTransform& point
   return axes;
 }
 
-// The median distance of a scan's points from the sensor.
+// The median distance of a scan's points from the sensor (of about a thousand of them, spread over the scan).
 double median_range(const std::vector<Vec3>& points) {
+  constexpr std::size_t kSampled = 1024;
+  const std::size_t step = std::max<std::size_t>(1, points.size() / kSampled);
   std::vector<double> ranges;
-  ranges.reserve(points.size());
-  for (const Vec3& p : points) ranges.push_back(p.norm());
+  ranges.reserve(points.size() / step + 1);
+  for (std::size_t i = 0; i < points.size(); i += step) ranges.push_back(points[i].norm());
   if (ranges.empty()) return 0.0;
   std::nth_element(ranges.begin(), ranges.begin() + ranges.size() / 2, ranges.end());
   return ranges[ranges.size() / 2];
