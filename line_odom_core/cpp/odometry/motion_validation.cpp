@@ -146,8 +146,9 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   int lean = 0;
   if (judged) {
     // A rotation apart by the tolerance at the scene's range, not only at the meeting lines' (on a sparse scan those
-    // near the sensor dominate, and a heading degrees off moves them less than the tolerance).
-    const double lever = std::max(obs.lever, median_range(*frame.points));
+    // near the sensor dominate, and a heading degrees off moves them less than the tolerance); where a gyro measured
+    // the turn the lines started from, at the lines' range.
+    const double lever = frame.rotation_guessed ? obs.lever : std::max(obs.lever, median_range(*frame.points));
     const int apart = axes_apart(outcome.best, *by_points, tolerance, lever) & resolved;
     lean = leaning_translation(outcome.best, *by_points, point_map.alignment_kernel_scale()) & apart;
     open |= apart & ~lean;

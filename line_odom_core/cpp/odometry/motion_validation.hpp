@@ -34,6 +34,7 @@ struct ValidationFrame {
   Mat6 unmeasured = Mat6::Zero();  // onto the prediction's directions no frame measured (MotionPrediction)
   bool first_motion = false;  // no velocity before this frame
   bool guessed = false;       // the prediction is a caller's measurement: open directions are held at it
+  bool rotation_guessed = false;  // the prediction's rotation is a gyro's measurement
   const MapAlignment* aligned_before = nullptr;  // nullable: this frame's alignment, made before the lines
   RegistrationFrame registration;
 };

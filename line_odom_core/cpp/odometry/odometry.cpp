@@ -458,6 +458,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     check.unmeasured = unmeasured;
     check.first_motion = first_motion;
     check.guessed = guessed;
+    check.rotation_guessed = rotation_guessed;
     if (align_first && sweep == nullptr) check.aligned_before = &aligned_before;  // points not deskewed again since
     check.registration = frame;
     const Validated validated = MotionValidation(lines_).validate(check, s.point_map, &outcome, &st);
