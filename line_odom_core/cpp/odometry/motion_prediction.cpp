@@ -67,11 +67,11 @@ void MotionPrediction::record(const RigidTransform& delta, const Mat6& held_proj
   last_delta_ = delta;
   last_held_projector_ = held_projector;
   // A first motion held in full measured no direction of the velocity; a later frame measures what it registers.
-  // (Without constant velocity every prediction is standing still: nothing to search; a guess is a measurement.)
-  if (guessed || !constant_velocity) unmeasured_projector_ = Mat6::Zero();
+  // (Without constant velocity every prediction is standing still: nothing to search; a guess is a measurement, and
+  // so is the point map's of the unmeasured directions.)
+  if (guessed || !constant_velocity || points_measured) unmeasured_projector_ = Mat6::Zero();
   else if (first_motion) unmeasured_projector_ = held_projector;
   else unmeasured_projector_ = common_directions(unmeasured_projector_, held_projector, kUnmeasuredCosine);
-  if (points_measured) unmeasured_projector_ = Mat6::Zero();
   if (rotation_guessed && !unmeasured_projector_.isZero()) {
     // A gyro measured the rotation: only translations can stay unmeasured.
     Mat6 translations = Mat6::Zero();

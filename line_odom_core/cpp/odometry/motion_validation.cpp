@@ -263,12 +263,9 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     const double tolerance = observability_push(outcome->best, lines_.config().validation);
     const int resolved = resolved_axes(points_covariance, tolerance, held_obs.lever);
     Vec6 step = motion_difference(by_points, frame.prediction);
-    for (int k = 3; k < 6; ++k)
+    for (int k = 0; k < 6; ++k)
       if (!(resolved >> k & 1)) step[k] = 0.0;
-    Vec3 translation = step.head<3>();
-    for (int k = 0; k < 3; ++k)
-      if (!(resolved >> k & 1)) translation[k] = 0.0;
-    step.head<3>() = frame.unmeasured.topLeftCorner<3, 3>() * translation;
+    step.head<3>() = frame.unmeasured.topLeftCorner<3, 3>() * step.head<3>();
     const bool measured = step.head<3>().norm() > 0.0;
     if ((resolved & kRotationAxes) != 0 || measured) {
       const RigidTransform turned = apply_motion_difference(step, frame.prediction);
@@ -327,7 +324,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       outcome->have = false;
       outcome->failure = std::string(why) + ": the point map's alignment taken";
       out.reference = by_points;
-      out.held_at_points = true;
+      out.held_at_points = placed_by_points;
     } else {
       outcome->failure = why;
     }

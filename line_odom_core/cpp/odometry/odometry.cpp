@@ -511,8 +511,8 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     // The map holds scans where the scans measured them: at the frame's pose when the lines registered it in full or
     // it was held at the point map's alignment or took it (Validated::held_at_points); a frame partly held at the
     // prediction enters where its points put it, along the directions they resolve (built on at the held motion, that
-    // motion would later be confirmed by itself). A sweep with point times enters only once deskewed at a known velocity: before the first motion it is
-    // used as measured, smeared along the motion by up to a sweep's travel.
+    // motion would later be confirmed by itself). A sweep with point times enters only once deskewed at a known
+    // velocity: before the first motion it is used as measured, smeared along the motion by up to a sweep's travel.
     const bool at_pose = (st.registered && st.held_directions == 0) || validated.held_at_points;
     if (s.point_map.enabled() && (at_pose || validated.judged) && (sweep == nullptr || !first_motion)) {
       Stopwatch stage;
