@@ -232,20 +232,11 @@ def peer_pose(odom) -> np.ndarray:
     return (odom.last_pose if hasattr(odom, "last_pose") else odom.poses[-1]).copy()
 
 
-def every_kth_scan(data, stride: int):
-    """Every `stride`-th scan of a run, its stamps kept: each scan moved `stride` times as far as in the run, as a
-    sensor that slow (or a drive that fast) would see it."""
-    if stride == 1:
-        return data
-    return dataclasses.replace(data, scan_paths=data.scan_paths[::stride], times=data.times[::stride],
-                               poses=data.poses[::stride])
-
-
 def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: dict, beams: int = 0,
               stride: int = 1) -> Row:
     """KITTI at downsampling step `level` with kitti_hdl64, or (beams > 0) with `beams` of its lasers with vlp16; every
     `stride`-th scan (its row named "<run> x<stride>")."""
-    data = every_kth_scan(open_run(seq, frames), stride)
+    data = open_run(seq, frames).every_kth_scan(stride)
     label = run_name(seq) + (f" x{stride}" if stride > 1 else "")
     config = (beams_config(beams, overrides) if beams else
               line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))

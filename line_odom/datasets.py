@@ -94,6 +94,12 @@ class KittiSequence:
     def __len__(self) -> int:
         return len(self.scan_paths)
 
+    def every_kth_scan(self, k: int) -> "KittiSequence":
+        """Every k-th scan with its stamp and pose: each scan moved k times as far as in the run, as a sensor that slow
+        (or a drive that fast) would see it."""
+        return dataclasses.replace(self, scan_paths=self.scan_paths[::k], times=self.times[::k],
+                                   poses=None if self.poses is None else self.poses[::k])
+
     def points(self, i: int) -> np.ndarray:
         return read_kitti_bin(self.scan_paths[i])
 

@@ -57,7 +57,7 @@ def test_accuracy_runs_every_kth_scan_as_a_faster_drive():
                "--kitti-frames", "7", "--kitti-stride", "2", "--no-kiss")
     rows = [line for line in out.splitlines() if line.startswith("kitti 07 x2") and "1/36" in line]
     assert rows and rows[0].split()[4] == "4", out
-    data = accuracy.every_kth_scan(accuracy.open_run("07", 7), 2)
+    data = accuracy.open_run("07", 7).every_kth_scan(2)
     assert len(data) == 4 and np.allclose(data.times, accuracy.open_run("07", 7).times[::2])
     assert np.allclose(data.poses[1], accuracy.open_run("07", 7).poses[2])
 

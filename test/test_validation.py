@@ -181,8 +181,7 @@ def test_a_sparse_alignment_leaning_to_standing_still_does_not_overrule_the_line
     standing still after: frames off by 0.40 m were reported as good. Short of the lines' motion on its side and within
     the alignment kernel's width of standing still, the points cannot tell the lines' motion from standing still: the
     lines' own test decides there."""
-    full = stop_and_go()
-    data = KittiSequence(full.root, full.scan_paths[::2], full.times[::2], full.Tr, full.poses[::2])
+    data = stop_and_go().every_kth_scan(2)
     _, stats, t, _ = run(data, "1/36")
     flagged = np.array([s["degenerate"] or not s["registered"] for s in stats[1:]])
     assert not (gross(t, data) & ~flagged).any(), np.round(t, 3)
@@ -194,8 +193,7 @@ def test_a_heading_the_map_measures_degrees_away_is_not_reported_as_good():
     stayed near the constant-velocity heading (1.07 deg) and the map's alignment (3.07 deg) was within the tolerance at
     the meeting lines' range (7 m, most of them near the sensor): reported as good, 2.1 deg off. Judged at the scene's
     range, the heading is held at the map's."""
-    full = kitti_sequence("09")
-    data = KittiSequence(full.root, full.scan_paths[::3], full.times[::3], full.Tr, full.poses[::3])
+    data = kitti_sequence("09").every_kth_scan(3)
     _, stats, _, results = run(data, "1/36")
     truth = np.linalg.inv(data.poses[2]) @ data.poses[3]
     error = np.degrees(np.linalg.norm(Rotation.from_matrix(truth[:3, :3].T @ results[3].delta[:3, :3]).as_rotvec()))
