@@ -86,6 +86,14 @@ int leaning_translation(const RigidTransform& lines, const RigidTransform& point
   return axes;
 }
 
+// The translation axes along which the points' motion lies within `basin` of standing still.
+int within_basin(const RigidTransform& points, double basin) {
+  int axes = 0;
+  for (int k = 0; k < 3; ++k)
+    if (std::abs(points.t[k]) < basin) axes |= 1 << k;
+  return axes;
+}
+
 // The median distance of a scan's points from the sensor (of about a thousand of them, spread over the scan).
 double median_range(const std::vector<Vec3>& points) {
   constexpr std::size_t kSampled = 1024;
@@ -150,7 +158,11 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
     // the turn the lines started from, at the lines' range.
     const double lever = frame.rotation_guessed ? obs.lever : std::max(obs.lever, median_range(*frame.points));
     const int apart = axes_apart(outcome.best, *by_points, tolerance, lever) & resolved;
-    lean = leaning_translation(outcome.best, *by_points, point_map.alignment_kernel_scale()) & apart;
+    // Where the kernel is wider than the tolerance, points inside it may sit in standing still's basin whatever the
+    // motion: agreeing with the lines there to the tolerance confirms nothing (the lines' own test decides).
+    const double basin = point_map.alignment_kernel_scale();
+    lean = (leaning_translation(outcome.best, *by_points, basin) & apart) |
+           (basin > tolerance ? within_basin(*by_points, basin) & ~apart & ~*reversed : 0);
     open |= apart & ~lean;
   }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
