@@ -74,8 +74,9 @@ class MotionValidation {
   // farther than the tolerance, where they resolve it (points_covariance) and do not fit the lines' motion as well,
   // and the resolved translation axes along which they lie on the other side of standing still (also into
   // *reversed); without it, and at a first motion, those `obs` leaves open. Where the points lie short of the lines'
-  // translation within the alignment kernel's width of standing still (a lean), they do not judge: those axes `obs`
-  // leaves open are open, into *leaning (flagged at the lines' motion, not held at the points').
+  // translation within the alignment kernel's width of standing still (a lean), or anywhere within it while it is wider
+  // than the tolerance, they do not judge: those axes `obs` leaves open are open, into *leaning (flagged at the lines'
+  // motion, not held at the points').
   int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
                       const PointMapTracker& point_map, const RigidTransform* by_points,
                       const Mat6& points_covariance, int* reversed, int* leaning) const;
