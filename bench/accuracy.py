@@ -11,6 +11,8 @@
     .venv/bin/python bench/accuracy.py --seeds 8        # + line_odom's spread over RANSAC seeds 0-7
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
     .venv/bin/python bench/accuracy.py --only kitti --kitti-stride 2   # every 2nd scan: each scan moves twice as far
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-backwards  # each run backwards: stops become starts
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from its 3rd scan: a start mid-drive
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
@@ -117,6 +119,7 @@ class Row:
     gross: int = -1       # gross frames not flagged (-1: not counted)
     dense_reference: bool = False  # translation judged against the dense registration (ground truth disagrees)
     kiss_reference: bool = False   # judged against KISS-ICP's own full-resolution poses (the stop-and-go drive)
+    playback: "Playback" = None    # how a KITTI run was played (None: as recorded)
 
 
 def frame_errors(poses: np.ndarray, gt: np.ndarray, valid: np.ndarray | None = None):
@@ -232,12 +235,36 @@ def peer_pose(odom) -> np.ndarray:
     return (odom.last_pose if hasattr(odom, "last_pose") else odom.poses[-1]).copy()
 
 
+@dataclasses.dataclass(frozen=True)
+class Playback:
+    """How a KITTI run is played, beyond the speeds and starts it holds: backwards (from its end, each interval
+    kept), from the `start`-th scan of that, every `stride`-th scan of that (stamps kept). Rows are named after it."""
+    stride: int = 1
+    start: int = 0
+    backwards: bool = False
+
+    def apply(self, data):
+        data = data.played_backwards() if self.backwards else data
+        data = data.from_scan(self.start) if self.start else data
+        return data.every_kth_scan(self.stride)
+
+    def suffix(self) -> str:
+        return ((" backwards" if self.backwards else "") + (f" from {self.start}" if self.start else "") +
+                (f" x{self.stride}" if self.stride > 1 else ""))
+
+
 def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: dict, beams: int = 0,
-              stride: int = 1) -> Row:
-    """KITTI at downsampling step `level` with kitti_hdl64, or (beams > 0) with `beams` of its lasers with vlp16; every
-    `stride`-th scan (its row named "<run> x<stride>")."""
-    data = open_run(seq, frames).every_kth_scan(stride)
-    label = run_name(seq) + (f" x{stride}" if stride > 1 else "")
+              playback: Playback = Playback()) -> Row:
+    """KITTI at downsampling step `level` with kitti_hdl64, or (beams > 0) with `beams` of its lasers with vlp16; played
+    as `playback` says (its row named "<run><playback.suffix()>")."""
+    try:
+        data = playback.apply(open_run(seq, frames))
+    except ValueError as err:
+        raise SystemExit(f"{seq}: --kitti-start {playback.start}: {err}")
+    if len(data) < 2:
+        raise SystemExit(f"{seq}: {len(data)} scan to play (--kitti-start {playback.start}, --kitti-stride "
+                         f"{playback.stride}); expected at least 2")
+    label = run_name(seq) + playback.suffix()
     config = (beams_config(beams, overrides) if beams else
               line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))
     odom = line_odom_core.Odometry(config)
@@ -285,6 +312,7 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     row.flagged, row.gross = flagged_and_gross(lo.stats, lo_frames[0], reference)
     row.dense_reference = judged
     row.kiss_reference = run_name(seq) == STOP_AND_GO
+    row.playback = playback
     return row
 
 
@@ -653,8 +681,8 @@ def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> Non
         per_seed = [row]
         for seed in range(1, seeds):
             over = {**overrides, "seed": seed}
-            run, _, stride = row.sequence.partition(" x")
-            again = (run_kitti(run, row.level, args.kitti_frames, False, over, row.beams, int(stride or 1))
+            run = row.sequence[: len(row.sequence) - len(row.playback.suffix())] if row.dataset == "kitti" else ""
+            again = (run_kitti(run, row.level, args.kitti_frames, False, over, row.beams, row.playback)
                      if row.dataset == "kitti"
                      else run_tum(row.level, args.tum_frames, False, over))
             per_seed.append(dataclasses.replace(again, kiss=row.kiss, kiss_ms=row.kiss_ms))
@@ -681,6 +709,12 @@ def main(argv=None) -> int:
     parser.add_argument("--kitti-stride", type=int, default=1, metavar="K",
                         help="every K-th scan of each run, stamps kept: each scan moves K times as far (rows named "
                              "'<run> xK'; the runs beyond the speeds they hold)")
+    parser.add_argument("--kitti-start", type=int, default=0, metavar="S",
+                        help="each run from its S-th scan on (after --kitti-backwards): a cold start mid-drive (rows "
+                             "named '<run> from S')")
+    parser.add_argument("--kitti-backwards", action="store_true",
+                        help="each run played backwards from its end, each interval kept: stops become starts, "
+                             "braking becomes accelerating (rows named '<run> backwards')")
     parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16, 32], choices=(8, 16, 32),
                         help="also KITTI kept to this many of its 64 lasers (every 4th for 16), every azimuth step, "
                              "with the vlp16 preset: a real 16-beam-like scan (none: skip)")
@@ -713,6 +747,11 @@ def main(argv=None) -> int:
     if args.only == "sim":
         args.sim = True
     overrides, kiss = overrides_and_kiss(parser, args)
+    if args.kitti_stride < 1:
+        parser.error(f"--kitti-stride {args.kitti_stride}: expected a whole number of scans >= 1")
+    if args.kitti_start < 0:
+        parser.error(f"--kitti-start {args.kitti_start}: expected a scan index >= 0")
+    playback = Playback(args.kitti_stride, args.kitti_start, args.kitti_backwards)
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; "
           f"KISS-ICP {'on' if kiss else 'off'} (deskew off, voxel = max_range / 100)")
     rows: list[Row] = []
@@ -721,12 +760,12 @@ def main(argv=None) -> int:
     if args.only in (None, "kitti"):
         for level in args.kitti_levels:
             for seq in args.kitti:
-                rows.append(run_kitti(seq, level, args.kitti_frames, kiss, overrides, stride=args.kitti_stride))
+                rows.append(run_kitti(seq, level, args.kitti_frames, kiss, overrides, playback=playback))
                 note_floor(rows[-1])
                 print(format_row(rows[-1]), flush=True)
         for beams in args.kitti_beams:
             for seq in args.kitti:
-                rows.append(run_kitti(seq, 1, args.kitti_frames, kiss, overrides, beams, args.kitti_stride))
+                rows.append(run_kitti(seq, 1, args.kitti_frames, kiss, overrides, beams, playback))
                 print(format_row(rows[-1]), flush=True)
     if args.only in (None, "tum"):
         for level in args.tum_levels:

@@ -100,6 +100,20 @@ class KittiSequence:
         return dataclasses.replace(self, scan_paths=self.scan_paths[::k], times=self.times[::k],
                                    poses=None if self.poses is None else self.poses[::k])
 
+    def from_scan(self, first: int) -> "KittiSequence":
+        """The run from scan `first` on, stamps and poses kept: a cold start mid-drive, at whatever speed it has there."""
+        if not 0 <= first < len(self):
+            raise ValueError(f"first scan {first}: expected 0 <= first < {len(self)} (the run's scans)")
+        return dataclasses.replace(self, scan_paths=self.scan_paths[first:], times=self.times[first:],
+                                   poses=None if self.poses is None else self.poses[first:])
+
+    def played_backwards(self) -> "KittiSequence":
+        """The scans in reverse order, each interval between two scans kept: the drive backwards, from its end (a
+        stop becomes a start from standing still, a braking car an accelerating one)."""
+        times = np.asarray(self.times)
+        return dataclasses.replace(self, scan_paths=self.scan_paths[::-1], times=times[-1] - times[::-1],
+                                   poses=None if self.poses is None else self.poses[::-1])
+
     def points(self, i: int) -> np.ndarray:
         return read_kitti_bin(self.scan_paths[i])
 

@@ -62,6 +62,27 @@ def test_accuracy_runs_every_kth_scan_as_a_faster_drive():
     assert np.allclose(data.poses[1], accuracy.open_run("07", 7).poses[2])
 
 
+def test_accuracy_plays_a_run_backwards_and_from_a_later_scan():
+    """--kitti-backwards --kitti-start 3: the run from its end, each interval kept, from the 3rd scan of that; each row
+    named '<run> backwards from 3' and judged against the same scans' ground truth."""
+    out = _run("bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--kitti-levels", "6", "--kitti-beams",
+               "--kitti-frames", "8", "--kitti-backwards", "--kitti-start", "3", "--no-kiss")
+    rows = [line for line in out.splitlines() if line.startswith("kitti 07 backwards from 3") and "1/36" in line]
+    assert rows and rows[0].split()[6] == "5", out
+    forward = accuracy.open_run("07", 8)
+    data = accuracy.Playback(start=3, backwards=True).apply(forward)
+    assert [p.name for p in data.scan_paths] == [p.name for p in forward.scan_paths[4::-1]]
+    assert np.allclose(np.diff(data.times), np.diff(forward.times)[3::-1]) and np.all(np.diff(data.times) > 0)
+    assert np.allclose(data.poses[0], forward.poses[4])
+
+
+def test_accuracy_refuses_a_start_beyond_the_run():
+    proc = subprocess.run([sys.executable, "bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--kitti-levels",
+                           "6", "--kitti-beams", "--kitti-start", "9", "--no-kiss"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode != 0 and "--kitti-start 9" in proc.stderr + proc.stdout
+
+
 def test_accuracy_refuses_a_directory_without_poses(tmp_path):
     (tmp_path / "velodyne").mkdir()
     source = SHARED_DATA / "kitti_raw_stop_and_go" / "velodyne" / "000000.bin"
