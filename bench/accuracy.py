@@ -12,7 +12,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
     .venv/bin/python bench/accuracy.py --only kitti --kitti-stride 2   # every 2nd scan: each scan moves twice as far
     .venv/bin/python bench/accuracy.py --only kitti --kitti-backwards  # each run backwards: stops become starts
-    .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from its 3rd scan: a start mid-drive
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from scan 3 (from 0): a start mid-drive
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
@@ -238,7 +238,7 @@ def peer_pose(odom) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class Playback:
     """How a KITTI run is played, beyond the speeds and starts it holds: backwards (from its end, each interval
-    kept), from the `start`-th scan of that, every `stride`-th scan of that (stamps kept). Rows are named after it."""
+    kept), from scan `start` of that (counting from 0), every `stride`-th scan of that (stamps kept). Rows are named after it."""
     stride: int = 1
     start: int = 0
     backwards: bool = False
@@ -710,8 +710,8 @@ def main(argv=None) -> int:
                         help="every K-th scan of each run, stamps kept: each scan moves K times as far (rows named "
                              "'<run> xK'; the runs beyond the speeds they hold)")
     parser.add_argument("--kitti-start", type=int, default=0, metavar="S",
-                        help="each run from its S-th scan on (after --kitti-backwards): a cold start mid-drive (rows "
-                             "named '<run> from S')")
+                        help="each run from scan S on, counting from 0 (after --kitti-backwards): a cold start "
+                             "mid-drive (rows named '<run> from S')")
     parser.add_argument("--kitti-backwards", action="store_true",
                         help="each run played backwards from its end, each interval kept: stops become starts, "
                              "braking becomes accelerating (rows named '<run> backwards')")
