@@ -12,7 +12,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32   # KITTI with 16 / 32 lasers
     .venv/bin/python bench/accuracy.py --only kitti --kitti-stride 2   # every 2nd scan: each scan moves twice as far
     .venv/bin/python bench/accuracy.py --only kitti --kitti-backwards  # each run backwards: stops become starts
-    .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from scan 3 (from 0): a start mid-drive
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from scan 3 (from 0): mid-drive
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
@@ -238,7 +238,8 @@ def peer_pose(odom) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class Playback:
     """How a KITTI run is played, beyond the speeds and starts it holds: backwards (from its end, each interval
-    kept), from scan `start` of that (counting from 0), every `stride`-th scan of that (stamps kept). Rows are named after it."""
+    kept), from scan `start` of that (counting from 0), every `stride`-th scan of that (stamps kept). Rows are named
+    after it."""
     stride: int = 1
     start: int = 0
     backwards: bool = False

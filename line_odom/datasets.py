@@ -101,7 +101,7 @@ class KittiSequence:
                                    poses=None if self.poses is None else self.poses[::k])
 
     def from_scan(self, first: int) -> "KittiSequence":
-        """The run from scan `first` on, stamps and poses kept: a cold start mid-drive, at whatever speed it has there."""
+        """The run from scan `first` on, stamps and poses kept: a cold start mid-drive, at the speed it has there."""
         if not 0 <= first < len(self):
             raise ValueError(f"first scan {first}: expected 0 <= first < {len(self)} (the run's scans)")
         return dataclasses.replace(self, scan_paths=self.scan_paths[first:], times=self.times[first:],

@@ -63,8 +63,8 @@ def test_accuracy_runs_every_kth_scan_as_a_faster_drive():
 
 
 def test_accuracy_plays_a_run_backwards_and_from_a_later_scan():
-    """--kitti-backwards --kitti-start 3: the run from its end, each interval kept, from scan 3 of that (counting from 0); each row
-    named '<run> backwards from 3' and judged against the same scans' ground truth."""
+    """--kitti-backwards --kitti-start 3: the run from its end, each interval kept, from scan 3 of that (counting
+    from 0); each row named '<run> backwards from 3' and judged against the same scans' ground truth."""
     out = _run("bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--kitti-levels", "6", "--kitti-beams",
                "--kitti-frames", "8", "--kitti-backwards", "--kitti-start", "3", "--no-kiss")
     rows = [line for line in out.splitlines() if line.startswith("kitti 07 backwards from 3") and "1/36" in line]
