@@ -74,24 +74,22 @@ int reversed_translation(const RigidTransform& lines, const RigidTransform& poin
   return axes;
 }
 
-// The translation axes along which the points' motion lies within `basin` of standing still and short of the lines'
-// on the same side: where a sparse scan's alignment falls when it leans to the last scan's sampling, whatever the
-// motion beyond it.
-int leaning_translation(const RigidTransform& lines, const RigidTransform& points, double basin) {
-  int axes = 0;
-  for (int k = 0; k < 3; ++k)
-    if (std::abs(points.t[k]) < basin && points.t[k] * lines.t[k] >= 0.0 &&
-        std::abs(lines.t[k]) > std::abs(points.t[k]))
-      axes |= 1 << k;
-  return axes;
-}
-
 // The translation axes along which the points' motion lies within `basin` of standing still.
 int within_basin(const RigidTransform& points, double basin) {
   int axes = 0;
   for (int k = 0; k < 3; ++k)
     if (std::abs(points.t[k]) < basin) axes |= 1 << k;
   return axes;
+}
+
+// The translation axes along which the points' motion lies within `basin` of standing still and short of the lines'
+// on the same side: where a sparse scan's alignment falls when it leans to the last scan's sampling, whatever the
+// motion beyond it.
+int leaning_translation(const RigidTransform& lines, const RigidTransform& points, double basin) {
+  int axes = 0;
+  for (int k = 0; k < 3; ++k)
+    if (points.t[k] * lines.t[k] >= 0.0 && std::abs(lines.t[k]) > std::abs(points.t[k])) axes |= 1 << k;
+  return axes & within_basin(points, basin);
 }
 
 // The median distance of a scan's points from the sensor (of about a thousand of them, spread over the scan).
