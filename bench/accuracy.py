@@ -119,6 +119,7 @@ class Row:
     gross: int = -1       # gross frames not flagged (-1: not counted)
     dense_reference: bool = False  # translation judged against the dense registration (ground truth disagrees)
     kiss_reference: bool = False   # judged against KISS-ICP's own full-resolution poses (the stop-and-go drive)
+    source: str = ""               # what open_run was given: a shared run's name or a directory
     playback: "Playback" = None    # how a KITTI run was played (None: as recorded)
 
 
@@ -258,8 +259,9 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
               playback: Playback = Playback()) -> Row:
     """KITTI at downsampling step `level` with kitti_hdl64, or (beams > 0) with `beams` of its lasers with vlp16; played
     as `playback` says (its row named "<run><playback.suffix()>")."""
+    data = open_run(seq, frames)
     try:
-        data = playback.apply(open_run(seq, frames))
+        data = playback.apply(data)
     except ValueError as err:
         raise SystemExit(f"{seq}: --kitti-start {playback.start}: {err}")
     if len(data) < 2:
@@ -313,6 +315,7 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     row.flagged, row.gross = flagged_and_gross(lo.stats, lo_frames[0], reference)
     row.dense_reference = judged
     row.kiss_reference = run_name(seq) == STOP_AND_GO
+    row.source = seq
     row.playback = playback
     return row
 
@@ -682,8 +685,7 @@ def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> Non
         per_seed = [row]
         for seed in range(1, seeds):
             over = {**overrides, "seed": seed}
-            run = row.sequence[: len(row.sequence) - len(row.playback.suffix())] if row.dataset == "kitti" else ""
-            again = (run_kitti(run, row.level, args.kitti_frames, False, over, row.beams, row.playback)
+            again = (run_kitti(row.source, row.level, args.kitti_frames, False, over, row.beams, row.playback)
                      if row.dataset == "kitti"
                      else run_tum(row.level, args.tum_frames, False, over))
             per_seed.append(dataclasses.replace(again, kiss=row.kiss, kiss_ms=row.kiss_ms))

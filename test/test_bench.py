@@ -76,6 +76,17 @@ def test_accuracy_plays_a_run_backwards_and_from_a_later_scan():
     assert np.allclose(data.poses[0], forward.poses[4])
 
 
+def test_accuracy_seed_spread_runs_a_directory_row_again(tmp_path):
+    """--seeds re-runs each row as it was opened: a --data directory (not a shared run of its base name), played as
+    its row was."""
+    (tmp_path / "drive").symlink_to(SHARED_DATA / "kitti_raw_stop_and_go")
+    out = _run("bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--data", str(tmp_path / "drive"),
+               "--kitti-levels", "8", "--kitti-beams", "--kitti-frames", "6", "--kitti-stride", "2", "--no-kiss",
+               "--seeds", "2")
+    spread = out.split("RANSAC seeds 0..1")[1]
+    assert any(line.startswith("kitti drive x2") for line in spread.splitlines()), out
+
+
 def test_accuracy_refuses_a_start_beyond_the_run():
     proc = subprocess.run([sys.executable, "bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--kitti-levels",
                            "6", "--kitti-beams", "--kitti-start", "9", "--no-kiss"], cwd=ROOT, capture_output=True,
