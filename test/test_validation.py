@@ -166,8 +166,7 @@ def test_a_first_motion_in_standing_stills_basin_stays_out_of_the_map():
     still's basin (0.07 m). Entered into the map there, the map confirmed the frames after it near standing still and
     one 1.2 m off was reported as good; within the alignment kernel's width of standing still it stays out, and the
     frames after it are judged by the lines alone."""
-    forward = kitti_sequence("02")
-    data = KittiSequence(forward.root, forward.scan_paths[::-1], forward.times, forward.Tr, forward.poses[::-1])
+    data = kitti_sequence("02").played_backwards()
     _, stats, t, _ = run(data, "1/36")
     assert "point map's alignment taken" in stats[1]["failure"] and stats[1]["map_entry"] == "none", stats[1]
     flagged = np.array([s["degenerate"] or not s["registered"] for s in stats[1:]])
