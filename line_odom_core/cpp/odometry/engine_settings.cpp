@@ -326,7 +326,8 @@ SettingsTable<ObservabilityOptions> validation_settings() {
              "... or this share of the motion's translation, when larger"),
       number("significance", &ObservabilityOptions::significance, "(0, 100]", "",
              "z a push must be rejected by for its direction to count as pinned down; and by which a first motion's "
-             "points must fit an alignment from a shifted start better than standing still's"),
+             "points must fit an alignment from a shifted start better than standing still's (or that start better "
+             "than its mirror image about standing still)"),
   }};
 }
 

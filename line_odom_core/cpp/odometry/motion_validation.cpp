@@ -183,6 +183,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   RigidTransform by_points;
   Mat6 points_covariance;
   int matched = 0;
+  bool travelled = false;  // a first motion's alignment the points showed the scan travelled to
   // A first motion is aligned from standing still and from the starts along the directions a vehicle travels that the
   // points fit best: from standing still alone, a sparse scan of a car at highway speed falls into standing still's
   // basin (its rings' points match the one-scan map's where they sat), even where they fit the right motion clearly
@@ -199,7 +200,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       (frame.first_motion ? point_map.align_from_starts(*frame.points, frame.previous_pose, frame.prediction,
                                                         travel_directions(*frame.current), reach,
                                                         lines_.config().validation.significance, &by_points, &matched,
-                                                        &points_covariance)
+                                                        &points_covariance, &travelled)
        : frame.aligned_before ? take_aligned_before(*frame.aligned_before)
                               : point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points,
                                                 &matched, &points_covariance));
@@ -303,7 +304,10 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                   : judged                  ? "the point map's alignment differs by more than validation.tolerance"
                   : (open & off_guess) != 0 ? "the guess differs by more than validation.tolerance"
                                             : "McNemar z under validation.significance");
-    if ((!judged && !frame.guessed && (open & reversed) == 0) || (judged && (open & ~leaning) == 0)) {
+    // A first motion the lines confirm along no axis is the points' where they showed the way the scan travelled.
+    const bool points_travelled = aligned && travelled && open == kAllAxes;
+    if ((!judged && !frame.guessed && (open & reversed) == 0 && !points_travelled) ||
+        (judged && (open & ~leaning) == 0)) {
       // Flagged: nothing better to hold the translations at (the prediction; a one-scan map's lean, not reversal; a
       // judging map's alignment leaning to standing still where the lines do not pin the motion down).
       // A first motion's rotations the lines leave open are the points', where they resolve them: the lines' rotation

@@ -67,7 +67,8 @@ bool PointMapTracker::align(const std::vector<Vec3>& points, const RigidTransfor
 bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                                         const RigidTransform& prediction, const std::vector<Vec3>& directions,
                                         double reach, double significance, RigidTransform* motion, int* matched,
-                                        Mat6* covariance) const {
+                                        Mat6* covariance, bool* travelled_out) const {
+  if (travelled_out != nullptr) *travelled_out = false;
   if (!ready()) return false;
   const std::vector<Vec3> aligned_points = thinned(points);
   const double sigma = model_error_.sigma();
@@ -78,24 +79,44 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
   PointAlignment best = from_prediction;
   double best_cost = point_cost(map_, aligned_points, best.pose, sigma);
   bool shifted = false;  // best is an alignment from a shifted start
+  // The one-scan map's points were sampled by the same lasers from where the prediction (standing still) puts this
+  // scan: there, and at any alignment ending in its basin, the points' cost is lowered by that coincidence whatever the
+  // motion. A start and its mirror image about the prediction lie equally far from it: a start the points fit better
+  // than its mirror by `significance` standard errors shows the way the scan travelled, and its alignment is taken
+  // where it ends outside the prediction's basin (the one of those the points fit best).
+  PointAlignment travelled;
+  double travelled_cost = std::numeric_limits<double>::infinity();  // infinite: none
   for (const Vec3& direction : directions) {
     RigidTransform start = prediction;
+    int start_step = 0;
     double start_cost = std::numeric_limits<double>::infinity();
     for (int k = -steps; k <= steps; ++k) {
       if (k == 0) continue;
       RigidTransform candidate = prediction;
       candidate.t += k * step * direction;
       const double c = point_cost(map_, aligned_points, previous_pose * candidate, sigma);
-      if (c < start_cost) start_cost = c, start = candidate;
+      if (c < start_cost) start_cost = c, start = candidate, start_step = k;
     }
     if (!std::isfinite(start_cost)) continue;
     const PointAlignment other = align_points(map_, aligned_points, previous_pose * start, sigma, options_.alignment);
     if (other.matched < kMinMatched || !other.pose.is_finite()) continue;
     const double cost = point_cost(map_, aligned_points, other.pose, sigma);
     if (cost < best_cost) best_cost = cost, best = other, shifted = true;
+    RigidTransform mirror = prediction;
+    mirror.t -= start_step * step * direction;
+    const bool beyond_basin = (other.pose.t - (previous_pose * prediction).t).norm() > step;
+    if (beyond_basin && cost < travelled_cost &&
+        point_cost_advantage(map_, aligned_points, previous_pose * start, previous_pose * mirror, sigma) >=
+            significance)
+      travelled = other, travelled_cost = cost;
   }
-  if (shifted && !(point_cost_advantage(map_, aligned_points, best.pose, from_prediction.pose, sigma) >= significance))
-    best = from_prediction;
+  const bool shift_fits_better =
+      shifted && point_cost_advantage(map_, aligned_points, best.pose, from_prediction.pose, sigma) >= significance;
+  if (!shift_fits_better) {
+    const bool have_travelled = std::isfinite(travelled_cost);
+    best = have_travelled ? travelled : from_prediction;
+    if (travelled_out != nullptr) *travelled_out = have_travelled;
+  }
   return accept(best, previous_pose, motion, matched, covariance);
 }
 

@@ -34,10 +34,13 @@ class PointMapTracker {
   // align from several starts: `prediction`, and along each of `directions` (unit) the shift of `prediction` the points
   // fit best (point_cost) of those every alignment kernel width (a start within it of the right motion falls into its
   // basin) out to `reach` either side. An alignment from a shift replaces the prediction's only where the points fit
-  // it better by `significance` standard errors (point_cost_advantage): along a corridor they fit every shift alike.
+  // it better by `significance` standard errors (point_cost_advantage): along a corridor they fit every shift alike;
+  // or where they fit its start better than the start's mirror image about the prediction by as much and it ends
+  // outside the prediction's basin: then `travelled` (nullable) is set.
   bool align_from_starts(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                          const RigidTransform& prediction, const std::vector<Vec3>& directions, double reach,
-                         double significance, RigidTransform* motion, int* matched, Mat6* covariance = nullptr) const;
+                         double significance, RigidTransform* motion, int* matched, Mat6* covariance = nullptr,
+                         bool* travelled = nullptr) const;
   // Whether `points` fit the map at least as well at motion `a` as at `b` (point_cost; both after `previous_pose`).
   bool fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                     const RigidTransform& b) const;
