@@ -307,8 +307,9 @@ def test_a_first_motion_turn_the_lines_leave_open_is_the_points(sequence, start,
     results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in (start, start + 1)]
     _, rotation = relative_pose_errors(np.array([r.pose for r in results]), data.poses)
     first = results[1]
-    if "the point map's alignment taken" in first.stats["failure"]:
-        assert not first.stats["registered"], first.stats["failure"]
+    if (sequence, start) == ("02", 5):
+        assert "the point map's alignment taken" in first.stats["failure"], first.stats["failure"]
+        assert not first.stats["registered"]
     else:
         assert "taken from the point map's alignment" in first.stats["failure"], first.stats["failure"]
         assert first.degenerate and first.stats["unobserved"] & 0x38
