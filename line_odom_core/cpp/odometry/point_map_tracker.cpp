@@ -74,8 +74,8 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
   const double sigma = model_error_.sigma();
   const double step = alignment_kernel_scale();
   const int steps = static_cast<int>(reach / step + 1e-9);
-  const PointAlignment from_prediction =
-      align_points(map_, aligned_points, previous_pose * prediction, sigma, options_.alignment);
+  const RigidTransform predicted_pose = previous_pose * prediction;
+  const PointAlignment from_prediction = align_points(map_, aligned_points, predicted_pose, sigma, options_.alignment);
   PointAlignment best = from_prediction;
   double best_cost = point_cost(map_, aligned_points, best.pose, sigma);
   bool shifted = false;  // best is an alignment from a shifted start
@@ -87,24 +87,25 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
   PointAlignment travelled;
   double travelled_cost = std::numeric_limits<double>::infinity();  // infinite: none
   for (const Vec3& direction : directions) {
-    RigidTransform start = prediction;
+    auto shifted_by = [&](double distance) {
+      RigidTransform moved = prediction;
+      moved.t += distance * direction;
+      return moved;
+    };
     int start_step = 0;
     double start_cost = std::numeric_limits<double>::infinity();
     for (int k = -steps; k <= steps; ++k) {
       if (k == 0) continue;
-      RigidTransform candidate = prediction;
-      candidate.t += k * step * direction;
-      const double c = point_cost(map_, aligned_points, previous_pose * candidate, sigma);
-      if (c < start_cost) start_cost = c, start = candidate, start_step = k;
+      const double c = point_cost(map_, aligned_points, previous_pose * shifted_by(k * step), sigma);
+      if (c < start_cost) start_cost = c, start_step = k;
     }
     if (!std::isfinite(start_cost)) continue;
+    const RigidTransform start = shifted_by(start_step * step), mirror = shifted_by(-start_step * step);
     const PointAlignment other = align_points(map_, aligned_points, previous_pose * start, sigma, options_.alignment);
     if (other.matched < kMinMatched || !other.pose.is_finite()) continue;
     const double cost = point_cost(map_, aligned_points, other.pose, sigma);
     if (cost < best_cost) best_cost = cost, best = other, shifted = true;
-    RigidTransform mirror = prediction;
-    mirror.t -= start_step * step * direction;
-    const bool beyond_basin = (other.pose.t - (previous_pose * prediction).t).norm() > step;
+    const bool beyond_basin = (other.pose.t - predicted_pose.t).norm() > step;
     if (beyond_basin && cost < travelled_cost &&
         point_cost_advantage(map_, aligned_points, previous_pose * start, previous_pose * mirror, sigma) >=
             significance)
