@@ -15,6 +15,12 @@ Mat6 motion_covariance(double translation_sigma, double rotation_sigma) {
   return covariance;
 }
 
+Mat6 reference_covariance(const RegistrationOptions& reg, bool have_velocity) {
+  if (have_velocity && reg.motion_prior_translation_sigma > 0.0)
+    return motion_covariance(reg.motion_prior_translation_sigma, reg.motion_prior_rotation_sigma_deg * kPi / 180.0);
+  return motion_covariance(reg.fallback_translation_sigma, reg.fallback_rotation_sigma_deg * kPi / 180.0);
+}
+
 FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& prediction, const RigidTransform& reference,
                         const RegistrationOptions& reg, bool have_velocity, const Mat6& unmeasured) {
   FusedMotion out;
@@ -60,7 +66,6 @@ FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& predic
     // The estimate's error is (I - G) e_lines + G e_reference (G = held_sensitivity): the free directions are coupled
     // to the held ones, so the reference's error reaches them too. Fused, K = fused P_f^-1:
     // error (I - K + K G) e_reference + K (I - G) e_lines.
-    const Mat6 reference_covariance = fuse_prior ? prior : motion_covariance(ts, rs);
     const Mat6& G = outcome.held_sensitivity;
     Mat6 gain = Mat6::Identity();
     if (fuse_prior) {
@@ -72,7 +77,7 @@ FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& predic
       }
     }
     const Mat6 from_reference = Mat6::Identity() - gain + gain * G;
-    const Mat6 propagated = from_reference * reference_covariance * from_reference.transpose() +
+    const Mat6 propagated = from_reference * reference_covariance(reg, have_velocity) * from_reference.transpose() +
                             gain * out.covariance * gain.transpose();
     if (propagated.allFinite()) out.covariance = propagated;
     for (int k = 0; k < held_count; ++k) {

@@ -24,6 +24,10 @@ struct FusedMotion {
 // Independent sigmas per axis: translation (m) on x y z, rotation (rad) on rx ry rz.
 Mat6 motion_covariance(double translation_sigma, double rotation_sigma);
 
+// How far the reference a frame's held directions are held at may be off: the constant-velocity prior's sigmas when a
+// velocity is known and the prior is fused (registration.motion_prior_*), else the fallback's.
+Mat6 reference_covariance(const RegistrationOptions& options, bool have_velocity);
+
 // `reference`: what the outcome's held directions were held at, and what a failed registration holds (the prediction,
 // or the points' motion); `prediction`: the constant-velocity prior; `fuse_prior`: a velocity was known before this
 // frame; `unmeasured`: the velocity's directions nobody measured (no prior pulls there).

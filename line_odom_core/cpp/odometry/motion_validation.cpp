@@ -8,8 +8,11 @@
 #include <string>
 #include <utility>
 
+#include <Eigen/Eigenvalues>
+
 #include "common/stopwatch.hpp"
 #include "features/scan_directions.hpp"
+#include "odometry/motion_fusion.hpp"
 
 namespace line_odom {
 
@@ -102,6 +105,25 @@ double median_range(const std::vector<Vec3>& points) {
   if (ranges.empty()) return 0.0;
   std::nth_element(ranges.begin(), ranges.begin() + ranges.size() / 2, ranges.end());
   return ranges[ranges.size() / 2];
+}
+
+// The horizontal direction across a travel of `travel` (unit; zero when it is shorter than `tolerance`, too short to
+// tell its way): a vehicle hardly moves along it.
+Vec3 side_of_travel(const Vec3& travel, const Vec3& up, double tolerance) {
+  const Vec3 side = travel.cross(up);
+  return travel.norm() > tolerance && side.norm() > 0.5 * travel.norm() ? Vec3(side.normalized()) : Vec3::Zero();
+}
+
+// The projector onto the directions of `projector` and `direction` (xi, unit).
+Mat6 widened(const Mat6& projector, const Vec6& direction) {
+  const Eigen::SelfAdjointEigenSolver<Mat6> spanned(projector + direction * direction.transpose());
+  Eigen::Matrix<double, 6, Eigen::Dynamic> basis(6, 0);
+  for (int k = 0; k < 6; ++k) {
+    if (!(spanned.eigenvalues()(k) > 0.5)) continue;
+    basis.conservativeResize(Eigen::NoChange, basis.cols() + 1);
+    basis.col(basis.cols() - 1) = spanned.eigenvectors().col(k);
+  }
+  return subspace_projector(basis);
 }
 
 // The map judges a frame from its points' alignment when the previous scan entered the map (its place relative to
@@ -276,15 +298,32 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     Vec6 step = motion_difference(by_points, frame.prediction);
     for (int k = 0; k < 6; ++k)
       if (!(resolved >> k & 1)) step[k] = 0.0;
-    step.head<3>() = frame.unmeasured.topLeftCorner<3, 3>() * step.head<3>();
-    const bool measured = step.head<3>().norm() > 0.0;
-    if ((resolved & kRotationAxes) != 0 || measured) {
+    // And the side of the travel, where the hold passes on more of the prediction's error there than the points' own:
+    // the lines' held direction can run off the road, so that the side they report follows the prediction's. The map's
+    // alignment leans to standing still, which along the side of a vehicle's travel is where the motion is.
+    const Mat3 unmeasured = frame.unmeasured.topLeftCorner<3, 3>();
+    Vec3 side = side_of_travel(frame.prediction.t, ground_up(*frame.current), tolerance);
+    Vec6 side_direction = Vec6::Zero();
+    side_direction.head<3>() = side;
+    const Mat6 reference_error = reference_covariance(lines_.config().registration, frame.registration.have_velocity);
+    const Vec6 passed_on = outcome->held_sensitivity.transpose() * side_direction;
+    if (!(passed_on.dot(reference_error * passed_on) > side.dot(points_covariance.topLeftCorner<3, 3>() * side)))
+      side.setZero();
+    const Vec3 moved = step.head<3>();
+    step.head<3>() = unmeasured * moved + (Mat3::Identity() - unmeasured) * side * side.dot(moved);
+    const bool measured = (unmeasured * moved).norm() > 0.0;
+    const bool sided = !side.isZero();
+    if ((resolved & kRotationAxes) != 0 || measured || sided) {
       const RigidTransform turned = apply_motion_difference(step, frame.prediction);
-      const Mat6 projector = outcome->held_projector;
+      side_direction.head<3>() = side;
+      const Mat6 projector = sided ? widened(outcome->held_projector, side_direction) : outcome->held_projector;
       if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
-        outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") +
-                            (measured ? "held at the point map's alignment along the velocity no frame measured"
-                                      : "turn held at the point map's alignment");
+        std::string held = measured ? "held at the point map's alignment along the velocity no frame measured"
+                           : (resolved & kRotationAxes) != 0 ? "turn held at the point map's alignment"
+                                                              : "";
+        if (sided) held += held.empty() ? "the side of the travel held at the point map's alignment"
+                                        : ", and the side of the travel";
+        outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + held;
         out.reference = turned;
         out.measured_velocity = measured;
       }
