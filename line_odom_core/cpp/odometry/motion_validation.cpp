@@ -108,7 +108,7 @@ double median_range(const std::vector<Vec3>& points) {
 }
 
 // The horizontal direction across a travel of `travel` (unit; zero when it is shorter than `tolerance`, too short to
-// tell its way): a vehicle hardly moves along it.
+// tell its way, or runs within 30 degrees of `up`): a vehicle hardly moves along it.
 Vec3 side_of_travel(const Vec3& travel, const Vec3& up, double tolerance) {
   const Vec3 side = travel.cross(up);
   return travel.norm() > tolerance && side.norm() > 0.5 * travel.norm() ? Vec3(side.normalized()) : Vec3::Zero();
