@@ -126,6 +126,32 @@ Mat6 widened(const Mat6& projector, const Vec6& direction) {
   return subspace_projector(basis);
 }
 
+// `lines` turned to `points` along the rotation axes `turns` (bits), its translation along `side` (unit, or zero) moved
+// by the regression of that direction on those axes in the lines' covariance: where the lines trade a turn for a
+// sideways shift, the shift their own estimate puts with the turn.
+RigidTransform turned_along_valley(const RigidTransform& lines, const RigidTransform& points, int turns,
+                                   const Mat6& covariance, const Vec3& side) {
+  const Vec6 xi = motion_difference(points, lines);
+  Vec6 step = Vec6::Zero();
+  Mat6 on_turns = Mat6::Zero();  // the covariance's block of the turned axes (identity elsewhere: invertible)
+  Vec6 side_direction = Vec6::Zero();
+  side_direction.head<3>() = side;
+  Vec6 with_side = Vec6::Zero();  // covariance of the side with each turned axis
+  for (int k = 0; k < 6; ++k) {
+    if (!(turns >> k & 1)) {
+      on_turns(k, k) = 1.0;
+      continue;
+    }
+    step[k] = xi[k];
+    with_side[k] = side_direction.dot(covariance.col(k));
+    for (int j = 0; j < 6; ++j)
+      if (turns >> j & 1) on_turns(k, j) = covariance(k, j);
+  }
+  const double shift = with_side.dot(on_turns.ldlt().solve(step));
+  if (std::isfinite(shift)) step.head<3>() = shift * side;
+  return apply_motion_difference(step, lines);
+}
+
 // The map judges a frame from its points' alignment when the previous scan entered the map (its place relative to
 // this scan is then known) and the frame is not a first motion.
 bool judges(const ValidationFrame& frame, const PointMapTracker& point_map, const RigidTransform* by_points) {
@@ -351,14 +377,16 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       // judging map's alignment leaning to standing still where the lines do not pin the motion down).
       // A first motion's rotations the lines leave open are the points', where they resolve them: the lines' rotation
       // there is one end of a valley they cannot tell apart (a turn traded for a sideways shift along a street's
-      // walls); the points measured it. Not the translations, which lean to standing still.
+      // walls); the points measured it. Not the translations, which lean to standing still; but the side of the travel
+      // moves with the turn along that valley, as far as the lines' own covariance puts it with the turn.
       outcome->failure = why;
       const double tolerance = observability_push(outcome->best, lines_.config().validation);
       const int turns = aligned && frame.first_motion
                             ? open & kRotationAxes & resolved_axes(points_covariance, tolerance, obs.lever)
                             : 0;
       if (turns != 0) {
-        outcome->best = along_axes(outcome->best, by_points, turns);
+        const Vec3 side = side_of_travel(outcome->best.t, ground_up(*frame.current), tolerance);
+        outcome->best = turned_along_valley(outcome->best, by_points, turns, outcome->stats.covariance, side);
         outcome->failure += ": " + axes_text(turns) + " taken from the point map's alignment";
       }
     } else if (aligned && open == kAllAxes) {
