@@ -311,50 +311,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       }
     }
   }
-  if (judged && outcome->have && outcome->held_directions > 0) {
-    // The rotations the lines leave open are held at the point map's alignment, which measured this scan, rather than
-    // at the prediction, which only extrapolates the last frames (and kept a wrong turn rate along them), where the
-    // points resolve them. The translations only along the velocity's directions no frame measured (a first motion
-    // taken from the one-scan map's alignment, which leans to standing still): elsewhere the prediction carries a
-    // motion the lines measured, and a sparse scan's alignment leans to the map's sampling (open_directions).
-    Correspondences held_corr;
-    const Observability held_obs = observe(frame, *outcome, &held_corr);
-    const double tolerance = observability_push(outcome->best, lines_.config().validation);
-    const int resolved = resolved_axes(points_covariance, tolerance, held_obs.lever);
-    Vec6 step = motion_difference(by_points, frame.prediction);
-    for (int k = 0; k < 6; ++k)
-      if (!(resolved >> k & 1)) step[k] = 0.0;
-    // And the side of the travel, where the hold passes on more of the prediction's error there than the points' own:
-    // the lines' held direction can run off the road, so that the side they report follows the prediction's. The map's
-    // alignment leans to standing still, which along the side of a vehicle's travel is where the motion is.
-    const Mat3 unmeasured = frame.unmeasured.topLeftCorner<3, 3>();
-    Vec3 side = side_of_travel(frame.prediction.t, ground_up(*frame.current), tolerance);
-    Vec6 side_direction = Vec6::Zero();
-    side_direction.head<3>() = side;
-    const Mat6 reference_error = reference_covariance(lines_.config().registration, frame.registration.have_velocity);
-    const Vec6 passed_on = outcome->held_sensitivity.transpose() * side_direction;
-    if (!(passed_on.dot(reference_error * passed_on) > side.dot(points_covariance.topLeftCorner<3, 3>() * side)))
-      side.setZero();
-    const Vec3 moved = step.head<3>();
-    step.head<3>() = unmeasured * moved + (Mat3::Identity() - unmeasured) * side * side.dot(moved);
-    const bool measured = (unmeasured * moved).norm() > 0.0;
-    const bool sided = !side.isZero();
-    if ((resolved & kRotationAxes) != 0 || measured || sided) {
-      const RigidTransform turned = apply_motion_difference(step, frame.prediction);
-      side_direction.head<3>() = side;
-      const Mat6 projector = sided ? widened(outcome->held_projector, side_direction) : outcome->held_projector;
-      if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
-        std::string held = measured ? "held at the point map's alignment along the velocity no frame measured"
-                           : (resolved & kRotationAxes) != 0 ? "turn held at the point map's alignment"
-                                                              : "";
-        if (sided) held += held.empty() ? "the side of the travel held at the point map's alignment"
-                                        : ", and the side of the travel";
-        outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + held;
-        out.reference = turned;
-        out.measured_velocity = measured;
-      }
-    }
-  }
+  if (judged && outcome->have && outcome->held_directions > 0)
+    hold_at_the_map(frame, by_points, points_covariance, outcome, &out);
   st->observability = obs.z;
   st->unobserved = registered_in_full(*outcome) ? open : 0;
 
@@ -424,6 +382,60 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   }
   st->ms.validation += watch.ms();
   return out;
+}
+
+void MotionValidation::hold_at_the_map(const ValidationFrame& frame, const RigidTransform& by_points,
+                                       const Mat6& points_covariance, PassOutcome* outcome, Validated* out) const {
+  // The rotations the lines leave open are held at the point map's alignment, which measured this scan, rather than
+  // at the prediction, which only extrapolates the last frames (and kept a wrong turn rate along them), where the
+  // points resolve them. The translations only along the velocity's directions no frame measured (a first motion
+  // taken from the one-scan map's alignment, which leans to standing still): elsewhere the prediction carries a
+  // motion the lines measured, and a sparse scan's alignment leans to the map's sampling (open_directions); and the
+  // side of the travel where held_side says.
+  Correspondences held_corr;
+  const Observability held_obs = observe(frame, *outcome, &held_corr);
+  const double tolerance = observability_push(outcome->best, lines_.config().validation);
+  const int resolved = resolved_axes(points_covariance, tolerance, held_obs.lever);
+  Vec6 step = motion_difference(by_points, frame.prediction);
+  for (int k = 0; k < 6; ++k)
+    if (!(resolved >> k & 1)) step[k] = 0.0;
+  const Mat3 unmeasured = frame.unmeasured.topLeftCorner<3, 3>();
+  const Vec3 side = held_side(frame, *outcome, points_covariance, tolerance);
+  const Vec3 moved = step.head<3>();
+  step.head<3>() = unmeasured * moved + (Mat3::Identity() - unmeasured) * side * side.dot(moved);
+  const bool measured = (unmeasured * moved).norm() > 0.0;
+  const bool sided = !side.isZero();
+  if ((resolved & kRotationAxes) != 0 || measured || sided) {
+    const RigidTransform turned = apply_motion_difference(step, frame.prediction);
+    Vec6 side_direction = Vec6::Zero();
+    side_direction.head<3>() = side;
+    const Mat6 projector = sided ? widened(outcome->held_projector, side_direction) : outcome->held_projector;
+    if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
+      std::string held = measured ? "held at the point map's alignment along the velocity no frame measured"
+                         : (resolved & kRotationAxes) != 0 ? "turn held at the point map's alignment"
+                                                            : "";
+      if (sided) held += held.empty() ? "the side of the travel held at the point map's alignment"
+                                      : ", and the side of the travel";
+      outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + held;
+      out->reference = turned;
+      out->measured_velocity = measured;
+    }
+  }
+}
+
+Vec3 MotionValidation::held_side(const ValidationFrame& frame, const PassOutcome& outcome, const Mat6& points_covariance,
+                                 double tolerance) const {
+  // The lines' held direction can run off the road, so that the side they report follows the prediction's: held at
+  // the points' where that passes on more of the prediction's error than the points' own. The map's alignment leans
+  // to standing still, which along the side of a vehicle's travel is where the motion is.
+  const Vec3 side = side_of_travel(frame.prediction.t, ground_up(*frame.current), tolerance);
+  Vec6 side_direction = Vec6::Zero();
+  side_direction.head<3>() = side;
+  const Mat6 reference_error = reference_covariance(lines_.config().registration, frame.registration.have_velocity);
+  const Vec6 passed_on = outcome.held_sensitivity.transpose() * side_direction;
+  return passed_on.dot(reference_error * passed_on) > side.dot(points_covariance.topLeftCorner<3, 3>() * side)
+             ? side
+             : Vec3::Zero();
 }
 
 RigidTransform place_on_map(const Validated& validated, const RigidTransform& previous_place,

@@ -81,6 +81,15 @@ class MotionValidation {
                       const PointMapTracker& point_map, const RigidTransform* by_points,
                       const Mat6& points_covariance, int* reversed, int* leaning) const;
 
+  // A judged frame whose refinement held directions: its rotations held at the point map's alignment `by_points`, the
+  // velocity's unmeasured translations and the side of the travel (held_side) too, where the points resolve them.
+  void hold_at_the_map(const ValidationFrame& frame, const RigidTransform& by_points, const Mat6& points_covariance,
+                       PassOutcome* outcome, Validated* out) const;
+  // The side of the travel (unit) where holding the lines' weak directions at the prediction would pass on more of
+  // its error there than the points' own variance; else zero.
+  Vec3 held_side(const ValidationFrame& frame, const PassOutcome& outcome, const Mat6& points_covariance,
+                 double tolerance) const;
+
   const LineRegistration& lines_;
 };
 
