@@ -160,6 +160,13 @@ bool judges(const ValidationFrame& frame, const PointMapTracker& point_map, cons
 
 }  // namespace
 
+struct MotionValidation::Judgement {
+  Correspondences corr;  // the last pass's candidates under the motion
+  Observability obs;     // McNemar's test on them
+  int open = kAllAxes;   // the directions not confirmed (open_directions)
+  int reversed = 0, leaning = 0;
+};
+
 Observability MotionValidation::observe(const ValidationFrame& frame, const PassOutcome& outcome,
                                         Correspondences* corr) const {
   const OdometryConfig& config = lines_.config();
@@ -263,54 +270,28 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   const bool placed_by_points =
       aligned && (!frame.first_motion || by_points.t.norm() > point_map.alignment_kernel_scale());
 
-  Correspondences corr;
-  Observability obs;
-  int open = kAllAxes;
-  int reversed = 0, off_guess = 0, leaning = 0;
+  Judgement judgement;
+  int off_guess = 0;
   if (registered_in_full(*outcome)) {
-    obs = observe(frame, *outcome, &corr);
-    open = open_directions(frame, *outcome, obs, point_map, points, points_covariance, &reversed, &leaning);
+    judge(frame, *outcome, point_map, points, points_covariance, &judgement);
     // A guess (wheel odometry) measured the distance travelled apart from the lines: a registration translated
     // farther from it than the tolerance is the lines' other valley point, not the guess's error (a slow car among
     // faster traffic: pairs on the passing cars support the motion mirrored about standing still, McNemar z above the
     // significance). Not the rotations: a source's heading may miss a turn change the lines and the turn search find.
     if (frame.guessed) {
       const double tolerance = observability_push(outcome->best, lines_.config().validation);
-      off_guess = axes_apart(outcome->best, frame.prediction, tolerance, obs.lever) & kTranslationAxes;
-      open |= off_guess;
+      off_guess = axes_apart(outcome->best, frame.prediction, tolerance, judgement.obs.lever) & kTranslationAxes;
+      judgement.open |= off_guess;
     }
   }
   const bool partly_registered = outcome->have && outcome->held_directions > 0;
-  if (aligned && open != 0 && (frame.first_motion || (!registered_in_full(*outcome) && !partly_registered))) {
-    // The lines again from where the points put the scan: a first motion beyond the candidates' reach from standing
-    // still, or a registration that failed from the prediction (not one whose refinement held a direction the lines
-    // do not pin down: from another start they would not pin it down either).
-    FrameStats other_stats;
-    PassOutcome other = lines_.register_features(*frame.previous, *frame.current, frame.prediction, by_points, true,
-                                                 frame.registration, &other_stats);
-    st->ms.candidates += other_stats.ms.candidates;
-    st->ms.ransac += other_stats.ms.ransac;
-    st->iterations += other_stats.iterations;
-    if (registered_in_full(other)) {
-      Correspondences other_corr;
-      const Observability other_obs = observe(frame, other, &other_corr);
-      int other_reversed = 0, other_leaning = 0;
-      const int other_open =
-          open_directions(frame, other, other_obs, point_map, points, points_covariance, &other_reversed,
-                          &other_leaning);
-      if (count_axes(other_open) < count_axes(open)) {
-        reversed = other_reversed;
-        leaning = other_leaning;
-        *outcome = std::move(other);
-        corr = std::move(other_corr);
-        obs = other_obs;
-        open = other_open;
-        st->candidates = other_stats.candidates;
-        st->plane_candidates = other_stats.plane_candidates;
-        st->passes = other_stats.passes;
-      }
-    }
-  }
+  if (aligned && judgement.open != 0 &&
+      (frame.first_motion || (!registered_in_full(*outcome) && !partly_registered)))
+    register_from_points(frame, point_map, by_points, points_covariance, outcome, &judgement, st);
+  Correspondences& corr = judgement.corr;
+  const Observability& obs = judgement.obs;
+  const int open = judgement.open;
+  const int reversed = judgement.reversed, leaning = judgement.leaning;
   if (judged && outcome->have && outcome->held_directions > 0)
     hold_at_the_map(frame, by_points, points_covariance, outcome, &out);
   st->observability = obs.z;
@@ -382,6 +363,36 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   }
   st->ms.validation += watch.ms();
   return out;
+}
+
+void MotionValidation::judge(const ValidationFrame& frame, const PassOutcome& outcome, const PointMapTracker& point_map,
+                             const RigidTransform* points, const Mat6& points_covariance, Judgement* judgement) const {
+  judgement->obs = observe(frame, outcome, &judgement->corr);
+  judgement->open = open_directions(frame, outcome, judgement->obs, point_map, points, points_covariance,
+                                    &judgement->reversed, &judgement->leaning);
+}
+
+void MotionValidation::register_from_points(const ValidationFrame& frame, const PointMapTracker& point_map,
+                                            const RigidTransform& by_points, const Mat6& points_covariance,
+                                            PassOutcome* outcome, Judgement* judgement, FrameStats* st) const {
+  // The lines again from where the points put the scan: a first motion beyond the candidates' reach from standing
+  // still, or a registration that failed from the prediction (not one whose refinement held a direction the lines
+  // do not pin down: from another start they would not pin it down either).
+  FrameStats other_stats;
+  PassOutcome other = lines_.register_features(*frame.previous, *frame.current, frame.prediction, by_points, true,
+                                               frame.registration, &other_stats);
+  st->ms.candidates += other_stats.ms.candidates;
+  st->ms.ransac += other_stats.ms.ransac;
+  st->iterations += other_stats.iterations;
+  if (!registered_in_full(other)) return;
+  Judgement other_judgement;
+  judge(frame, other, point_map, &by_points, points_covariance, &other_judgement);
+  if (count_axes(other_judgement.open) >= count_axes(judgement->open)) return;
+  *outcome = std::move(other);
+  *judgement = std::move(other_judgement);
+  st->candidates = other_stats.candidates;
+  st->plane_candidates = other_stats.plane_candidates;
+  st->passes = other_stats.passes;
 }
 
 void MotionValidation::hold_at_the_map(const ValidationFrame& frame, const RigidTransform& by_points,

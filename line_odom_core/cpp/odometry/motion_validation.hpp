@@ -68,6 +68,15 @@ class MotionValidation {
                      FrameStats* st) const;
 
  private:
+  struct Judgement;  // what the checks found of a registration (motion_validation.cpp)
+  // observe and open_directions of `outcome`, into *judgement.
+  void judge(const ValidationFrame& frame, const PassOutcome& outcome, const PointMapTracker& point_map,
+             const RigidTransform* points, const Mat6& points_covariance, Judgement* judgement) const;
+  // The lines registered again from the points' motion `by_points`: taken, with its judgement, where it leaves fewer
+  // directions open.
+  void register_from_points(const ValidationFrame& frame, const PointMapTracker& point_map,
+                            const RigidTransform& by_points, const Mat6& points_covariance, PassOutcome* outcome,
+                            Judgement* judgement, FrameStats* st) const;
   // McNemar's test of `outcome` on the last pass's candidates under its motion (filled into corr).
   Observability observe(const ValidationFrame& frame, const PassOutcome& outcome, Correspondences* corr) const;
   // The directions (bits of xi) along which `outcome` is not confirmed: those the points' motion (nullable) puts
