@@ -288,7 +288,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   if (aligned && judgement.open != 0 &&
       (frame.first_motion || (!registered_in_full(*outcome) && !partly_registered)))
     register_from_points(frame, point_map, by_points, points_covariance, outcome, &judgement, st);
-  Correspondences& corr = judgement.corr;
+  const Correspondences& corr = judgement.corr;
   const Observability& obs = judgement.obs;
   const int open = judgement.open;
   const int reversed = judgement.reversed, leaning = judgement.leaning;
@@ -434,8 +434,8 @@ void MotionValidation::hold_at_the_map(const ValidationFrame& frame, const Rigid
   }
 }
 
-Vec3 MotionValidation::held_side(const ValidationFrame& frame, const PassOutcome& outcome, const Mat6& points_covariance,
-                                 double tolerance) const {
+Vec3 MotionValidation::held_side(const ValidationFrame& frame, const PassOutcome& outcome,
+                                 const Mat6& points_covariance, double tolerance) const {
   // The lines' held direction can run off the road, so that the side they report follows the prediction's: held at
   // the points' where that passes on more of the prediction's error than the points' own. The map's alignment leans
   // to standing still, which along the side of a vehicle's travel is where the motion is.
