@@ -203,6 +203,18 @@ def test_a_held_frame_takes_the_side_of_the_travel_from_the_point_map():
     assert max(side_errors) < 0.04, np.round(side_errors, 3)
 
 
+def test_a_translation_the_lines_leave_open_is_held_where_the_points_put_it():
+    """KITTI 02 at 1/36 (a highway, 1.5 m a scan): on frames 6 and 7 the lines' own test could not pin the road
+    (McNemar z -0.2) and they landed 0.22 and 0.17 m short, which the point map's alignment (1.50 m, resolved to a
+    centimetre) confirmed because it lay within the tolerance (30 % of the motion). Where the points resolve such a
+    translation and put it farther than their resolution from the lines', it is held there, with the lines' valley."""
+    data = kitti_sequence("02")
+    poses, stats, t, _ = run(data, "1/36")
+    held = [k for k in range(2, len(data)) if "the point map's alignment resolving it elsewhere" in stats[k]["failure"]]
+    assert held, [s["failure"] for s in stats[1:]]
+    assert t[1:].max() < 0.08, np.round(t, 3)
+
+
 @pytest.mark.parametrize("level", ["1/36", "1/64"])
 def test_a_first_motions_turn_from_the_points_moves_its_side_along_the_lines_valley(level):
     """KITTI 08 at 1/36 and 1/64: the sparse lines trade the first motion's turn for a sideways shift along the

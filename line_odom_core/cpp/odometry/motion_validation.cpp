@@ -77,6 +77,17 @@ int reversed_translation(const RigidTransform& lines, const RigidTransform& poin
   return axes;
 }
 
+// The translation axes along which the points' motion lies farther from the lines' than `floor` and three of the
+// points' standard deviations.
+int translation_apart(const RigidTransform& lines, const RigidTransform& points, const Mat6& points_covariance,
+                      double floor) {
+  int axes = 0;
+  for (int k = 0; k < 3; ++k)
+    if (std::abs(points.t[k] - lines.t[k]) > std::max(3.0 * std::sqrt(std::max(0.0, points_covariance(k, k))), floor))
+      axes |= 1 << k;
+  return axes;
+}
+
 // The translation axes along which the points' motion lies within `basin` of standing still.
 int within_basin(const RigidTransform& points, double basin) {
   int axes = 0;
@@ -152,6 +163,17 @@ RigidTransform turned_along_valley(const RigidTransform& lines, const RigidTrans
   return apply_motion_difference(step, lines);
 }
 
+// The projector onto the direction along which the lines' motion of covariance `covariance` is least known (rotations
+// at `lever`): the valley along which they trade a turn for a shift.
+Mat6 valley_projector(const Mat6& covariance, double lever) {
+  Vec6 scale;
+  scale << 1.0, 1.0, 1.0, lever, lever, lever;
+  const Eigen::SelfAdjointEigenSolver<Mat6> eigen(scale.asDiagonal() * covariance * scale.asDiagonal());
+  if (eigen.info() != Eigen::Success) return Mat6::Zero();
+  const Vec6 direction = (eigen.eigenvectors().col(5).array() / scale.array()).matrix().normalized();
+  return direction * direction.transpose();
+}
+
 // The map judges a frame from its points' alignment when the previous scan entered the map (its place relative to
 // this scan is then known) and the frame is not a first motion.
 bool judges(const ValidationFrame& frame, const PointMapTracker& point_map, const RigidTransform* by_points) {
@@ -165,6 +187,7 @@ struct MotionValidation::Judgement {
   Observability obs;     // McNemar's test on them
   int open = kAllAxes;   // the directions not confirmed (open_directions)
   int reversed = 0, leaning = 0;
+  int unpinned = 0;  // open translations the lines' own test leaves open and the points put elsewhere
 };
 
 Observability MotionValidation::observe(const ValidationFrame& frame, const PassOutcome& outcome,
@@ -185,9 +208,10 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
 int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
                                       const Observability& obs, const PointMapTracker& point_map,
                                       const RigidTransform* by_points, const Mat6& points_covariance,
-                                      int* reversed, int* leaning) const {
+                                      int* reversed, int* leaning, int* unpinned) const {
   *reversed = 0;
   *leaning = 0;
+  *unpinned = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
   // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
@@ -217,12 +241,19 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
     lean = (leaning_translation(outcome.best, *by_points, basin) & apart) |
            (basin > tolerance ? within_basin(*by_points, basin) & ~apart & ~*reversed : 0);
     open |= apart & ~lean;
+    // Along a translation the lines' own test leaves open, agreeing with the points to the tolerance only says that the
+    // lines' valley reaches the points' motion: where the points resolve it, do not lean and put it farther than their
+    // resolution (a third of the tolerance) from the lines', the lines' motion there is not confirmed either.
+    *unpinned = obs.unobserved & resolved & ~lean & ~within_basin(*by_points, basin) &
+                translation_apart(outcome.best, *by_points, points_covariance, tolerance / 3.0) & ~open;
+    open |= *unpinned;
   }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction, a lean), and the points confirm the lines.
   if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {
     open = 0;
     *reversed = 0;
+    *unpinned = 0;
   }
   // Where the points lean, they cannot tell the lines' motion from standing still: the lines' own test decides there.
   *leaning = obs.unobserved & lean;
@@ -291,12 +322,15 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   const Correspondences& corr = judgement.corr;
   const Observability& obs = judgement.obs;
   const int open = judgement.open;
-  const int reversed = judgement.reversed, leaning = judgement.leaning;
+  const int reversed = judgement.reversed, leaning = judgement.leaning, unpinned = judgement.unpinned;
   if (judged && outcome->have && outcome->held_directions > 0)
     hold_at_the_map(frame, by_points, points_covariance, outcome, &out);
   st->observability = obs.z;
   st->unobserved = registered_in_full(*outcome) ? open : 0;
 
+  // Where the lines leave a translation open that the points put elsewhere, their valley (a turn traded for a shift)
+  // is held there too: held on that axis alone, the lines slide along the rest of it.
+  const Mat6 valley = unpinned != 0 ? valley_projector(outcome->stats.covariance, obs.lever) : Mat6::Zero();
   if (registered_in_full(*outcome) && open != 0) {
     // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion
     // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
@@ -305,6 +339,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
                   (open & reversed) != 0    ? "the point map's alignment moves the other way"
                   : (open & ~leaning) == 0  ? "McNemar z under validation.significance, the point map's alignment "
                                               "leaning to standing still"
+                  : (open & ~unpinned) == 0 ? "McNemar z under validation.significance, the point map's alignment "
+                                              "resolving it elsewhere"
                   : judged                  ? "the point map's alignment differs by more than validation.tolerance"
                   : (open & off_guess) != 0 ? "the guess differs by more than validation.tolerance"
                                             : "McNemar z under validation.significance");
@@ -334,7 +370,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       out.reference = by_points;
       out.held_at_points = placed_by_points;
     } else if ((aligned || frame.guessed) &&
-               lines_.hold_directions(corr, LinePairTable(corr), reference, open & ~leaning, nullptr, outcome)) {
+               lines_.hold_directions(corr, LinePairTable(corr), reference, open & ~leaning,
+                                      unpinned != 0 ? &valley : nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
       out.reference = reference;
       out.held_at_points = aligned;
@@ -369,7 +406,7 @@ void MotionValidation::judge(const ValidationFrame& frame, const PassOutcome& ou
                              const RigidTransform* points, const Mat6& points_covariance, Judgement* judgement) const {
   judgement->obs = observe(frame, outcome, &judgement->corr);
   judgement->open = open_directions(frame, outcome, judgement->obs, point_map, points, points_covariance,
-                                    &judgement->reversed, &judgement->leaning);
+                                    &judgement->reversed, &judgement->leaning, &judgement->unpinned);
 }
 
 void MotionValidation::register_from_points(const ValidationFrame& frame, const PointMapTracker& point_map,

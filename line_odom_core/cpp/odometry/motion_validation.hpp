@@ -85,10 +85,11 @@ class MotionValidation {
   // *reversed); without it, and at a first motion, those `obs` leaves open. Where the points lie short of the lines'
   // translation within the alignment kernel's width of standing still (a lean), or anywhere within it while it is wider
   // than the tolerance, they do not judge: those axes `obs` leaves open are open, into *leaning (flagged at the lines'
-  // motion, not held at the points').
+  // motion, not held at the points'). Translations `obs` leaves open that the points resolve outside that width and put
+  // farther than a third of the tolerance from the lines' are open too, into *unpinned.
   int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
                       const PointMapTracker& point_map, const RigidTransform* by_points,
-                      const Mat6& points_covariance, int* reversed, int* leaning) const;
+                      const Mat6& points_covariance, int* reversed, int* leaning, int* unpinned) const;
 
   // A judged frame whose refinement held directions: its rotations held at the point map's alignment `by_points`, the
   // velocity's unmeasured translations and the side of the travel (held_side) too, where the points resolve them.
