@@ -215,6 +215,20 @@ def test_a_translation_the_lines_leave_open_is_held_where_the_points_put_it():
     assert t[1:].max() < 0.08, np.round(t, 3)
 
 
+def test_a_turn_the_lines_leave_open_is_held_where_the_points_put_it():
+    """KITTI 09 at 1/64, frame 9: the lines' own test cannot pin the heading, and from the prediction they land 0.87
+    degrees off in yaw with the side 0.12 m off along their valley, within the tolerance at the scene's range of the
+    points' heading, which resolves it finely: held at the points' heading, with the valley, not reported as good."""
+    data = kitti_sequence("09")
+    poses, stats, _, _ = run(data, "1/64")
+    failure = stats[9]["failure"]
+    assert "along rz" in failure and "resolving it elsewhere" in failure, failure
+    travelled = np.linalg.inv(data.poses[8]) @ data.poses[9]
+    error = np.linalg.inv(travelled) @ np.linalg.inv(poses[8]) @ poses[9]
+    yaw_error = np.degrees(abs(np.arctan2(error[1, 0], error[0, 0])))
+    assert yaw_error < 0.3, yaw_error
+
+
 @pytest.mark.parametrize("level", ["1/36", "1/64"])
 def test_a_first_motions_turn_from_the_points_moves_its_side_along_the_lines_valley(level):
     """KITTI 08 at 1/36 and 1/64: the sparse lines trade the first motion's turn for a sideways shift along the

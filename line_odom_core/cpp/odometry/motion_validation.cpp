@@ -77,14 +77,18 @@ int reversed_translation(const RigidTransform& lines, const RigidTransform& poin
   return axes;
 }
 
-// The translation axes along which the points' motion lies farther from the lines' than `floor` and three of the
-// points' standard deviations.
-int translation_apart(const RigidTransform& lines, const RigidTransform& points, const Mat6& points_covariance,
-                      double floor) {
+// The axes of xi (bits) along which the points' motion lies farther from the lines' than `floor` and three of the
+// points' standard deviations (rotations at `lever`).
+int beyond_points_noise(const RigidTransform& lines, const RigidTransform& points, const Mat6& points_covariance,
+                        double floor, double lever) {
+  const Vec6 turned = motion_difference(lines, points);
   int axes = 0;
-  for (int k = 0; k < 3; ++k)
-    if (std::abs(points.t[k] - lines.t[k]) > std::max(3.0 * std::sqrt(std::max(0.0, points_covariance(k, k))), floor))
+  for (int k = 0; k < 6; ++k) {
+    const double scale = k < 3 ? 1.0 : lever;
+    const double difference = k < 3 ? points.t[k] - lines.t[k] : turned[k];
+    if (std::abs(difference) * scale > std::max(3.0 * std::sqrt(std::max(0.0, points_covariance(k, k))) * scale, floor))
       axes |= 1 << k;
+  }
   return axes;
 }
 
@@ -187,7 +191,7 @@ struct MotionValidation::Judgement {
   Observability obs;     // McNemar's test on them
   int open = kAllAxes;   // the directions not confirmed (open_directions)
   int reversed = 0, leaning = 0;
-  int unpinned = 0;  // open translations the lines' own test leaves open and the points put elsewhere
+  int unpinned = 0;  // open directions the lines' own test leaves open and the points put elsewhere
 };
 
 Observability MotionValidation::observe(const ValidationFrame& frame, const PassOutcome& outcome,
@@ -241,11 +245,11 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
     lean = (leaning_translation(outcome.best, *by_points, basin) & apart) |
            (basin > tolerance ? within_basin(*by_points, basin) & ~apart & ~*reversed : 0);
     open |= apart & ~lean;
-    // Along a translation the lines' own test leaves open, agreeing with the points to the tolerance only says that the
+    // Along a direction the lines' own test leaves open, agreeing with the points to the tolerance only says that the
     // lines' valley reaches the points' motion: where the points resolve it, do not lean and put it farther than their
     // resolution (a third of the tolerance) from the lines', the lines' motion there is not confirmed either.
     *unpinned = obs.unobserved & resolved & ~lean & ~within_basin(*by_points, basin) &
-                translation_apart(outcome.best, *by_points, points_covariance, tolerance / 3.0) & ~open;
+                beyond_points_noise(outcome.best, *by_points, points_covariance, tolerance / 3.0, lever) & ~open;
     open |= *unpinned;
   }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
@@ -328,8 +332,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   st->observability = obs.z;
   st->unobserved = registered_in_full(*outcome) ? open : 0;
 
-  // Where the lines leave a translation open that the points put elsewhere, their valley (a turn traded for a shift)
-  // is held there too: held on that axis alone, the lines slide along the rest of it.
+  // Where the lines leave a direction open that the points put elsewhere, their valley (a turn traded for a shift) is
+  // held there too: held on that axis alone, the lines slide along the rest of it.
   const Mat6 valley = unpinned != 0 ? valley_projector(outcome->stats.covariance, obs.lever) : Mat6::Zero();
   if (registered_in_full(*outcome) && open != 0) {
     // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion

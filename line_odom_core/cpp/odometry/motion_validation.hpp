@@ -85,7 +85,7 @@ class MotionValidation {
   // *reversed); without it, and at a first motion, those `obs` leaves open. Where the points lie short of the lines'
   // translation within the alignment kernel's width of standing still (a lean), or anywhere within it while it is wider
   // than the tolerance, they do not judge: those axes `obs` leaves open are open, into *leaning (flagged at the lines'
-  // motion, not held at the points'). Translations `obs` leaves open that the points resolve outside that width and put
+  // motion, not held at the points'). Directions `obs` leaves open that the points resolve outside that width and put
   // farther than a third of the tolerance from the lines' are open too, into *unpinned.
   int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
                       const PointMapTracker& point_map, const RigidTransform* by_points,
