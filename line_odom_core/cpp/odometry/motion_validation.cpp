@@ -141,6 +141,13 @@ Mat6 widened(const Mat6& projector, const Vec6& direction) {
   return subspace_projector(basis);
 }
 
+// A shift along `direction` without a turn, as xi.
+Vec6 shift_along(const Vec3& direction) {
+  Vec6 xi = Vec6::Zero();
+  xi.head<3>() = direction;
+  return xi;
+}
+
 // `lines` turned to `points` along the rotation axes `turns` (bits), its translation along `side` (unit, or zero) moved
 // by the regression of that direction on those axes in the lines' covariance: where the lines trade a turn for a
 // sideways shift, the shift their own estimate puts with the turn.
@@ -149,8 +156,7 @@ RigidTransform turned_along_valley(const RigidTransform& lines, const RigidTrans
   const Vec6 xi = motion_difference(points, lines);
   Vec6 step = Vec6::Zero();
   Mat6 on_turns = Mat6::Zero();  // the covariance's block of the turned axes (identity elsewhere: invertible)
-  Vec6 side_direction = Vec6::Zero();
-  side_direction.head<3>() = side;
+  const Vec6 side_direction = shift_along(side);
   Vec6 with_side = Vec6::Zero();  // covariance of the side with each turned axis
   for (int k = 0; k < 6; ++k) {
     if (!(turns >> k & 1)) {
@@ -459,9 +465,7 @@ void MotionValidation::hold_at_the_map(const ValidationFrame& frame, const Rigid
   const bool sided = !side.isZero();
   if ((resolved & kRotationAxes) != 0 || measured || sided) {
     const RigidTransform turned = apply_motion_difference(step, frame.prediction);
-    Vec6 side_direction = Vec6::Zero();
-    side_direction.head<3>() = side;
-    const Mat6 projector = sided ? widened(outcome->held_projector, side_direction) : outcome->held_projector;
+    const Mat6 projector = sided ? widened(outcome->held_projector, shift_along(side)) : outcome->held_projector;
     if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
       std::string held = measured ? "held at the point map's alignment along the velocity no frame measured"
                          : (resolved & kRotationAxes) != 0 ? "turn held at the point map's alignment"
@@ -481,10 +485,8 @@ Vec3 MotionValidation::held_side(const ValidationFrame& frame, const PassOutcome
   // the points' where that passes on more of the prediction's error than the points' own. The map's alignment leans
   // to standing still, which along the side of a vehicle's travel is where the motion is.
   const Vec3 side = side_of_travel(frame.prediction.t, ground_up(*frame.current), tolerance);
-  Vec6 side_direction = Vec6::Zero();
-  side_direction.head<3>() = side;
   const Mat6 reference_error = reference_covariance(lines_.config().registration, frame.registration.have_velocity);
-  const Vec6 passed_on = outcome.held_sensitivity.transpose() * side_direction;
+  const Vec6 passed_on = outcome.held_sensitivity.transpose() * shift_along(side);
   return passed_on.dot(reference_error * passed_on) > side.dot(points_covariance.topLeftCorner<3, 3>() * side)
              ? side
              : Vec3::Zero();
