@@ -60,8 +60,8 @@ int axes_apart(const RigidTransform& a, const RigidTransform& b, double toleranc
 
 // The translation axes along which the points' motion lies on the far side of standing still from the lines': a sparse
 // scan's alignment falls short of a motion (open_directions), it does not reverse it. `floor` is the lines' inlier
-// threshold, their noise: the lines' translation counts beyond three of it, the points' reversal beyond it and three
-// of their own standard deviations.
+// threshold, their noise: the lines' translation counts beyond three of it; the points' reversal is judged by their own
+// noise, beyond three of their standard deviations.
 int reversed_translation(const RigidTransform& lines, const RigidTransform& points, const Mat6& points_covariance,
                          double floor) {
   const double moved = lines.t.norm();
@@ -70,7 +70,7 @@ int reversed_translation(const RigidTransform& lines, const RigidTransform& poin
   const double along = points.t.dot(direction);
   const double sigma =
       std::sqrt(std::max(0.0, direction.dot(points_covariance.topLeftCorner<3, 3>() * direction)));
-  if (!(along < -std::max(3.0 * sigma, floor))) return 0;
+  if (!(along < -3.0 * sigma)) return 0;
   int axes = 0;
   for (int k = 0; k < 3; ++k)
     if (std::abs(lines.t[k]) > floor) axes |= 1 << k;
