@@ -42,16 +42,20 @@ class FrameResult:
 
 def log_se3(T: np.ndarray) -> np.ndarray:
     """xi = (rho, phi) with exp(xi) = T: the constant body twist that moves by T in unit time."""
-    phi = np.asarray(_core.rotation_vector(np.ascontiguousarray(T[:3, :3], dtype=float)), dtype=float)
-    theta = float(np.linalg.norm(phi))
-    W = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    if theta < 1e-6:
-        V_inv = np.eye(3) - 0.5 * W + W @ W / 12.0
+    phi = _core.rotation_vector(np.ascontiguousarray(T[:3, :3], dtype=float))
+    px, py, pz = (float(v) for v in phi)
+    tx, ty, tz = (float(v) for v in T[:3, 3])
+    theta2 = px * px + py * py + pz * pz
+    if theta2 < 1e-12:
+        coeff = 1.0 / 12.0
     else:
-        half = 0.5 * theta
-        coeff = (1.0 - half * math.cos(half) / math.sin(half)) / (theta * theta)
-        V_inv = np.eye(3) - 0.5 * W + coeff * (W @ W)
-    return np.concatenate([V_inv @ T[:3, 3], phi])
+        half = 0.5 * math.sqrt(theta2)
+        coeff = (1.0 - half * math.cos(half) / math.sin(half)) / theta2
+    # rho = V^-1 t = t - phi x t / 2 + coeff phi x (phi x t), in scalars: a frame's twist costs microseconds, not the
+    # tens a 3x3 matrix of numpy calls takes.
+    wx, wy, wz = py * tz - pz * ty, pz * tx - px * tz, px * ty - py * tx
+    vx, vy, vz = py * wz - pz * wy, pz * wx - px * wz, px * wy - py * wx
+    return np.array([tx - 0.5 * wx + coeff * vx, ty - 0.5 * wy + coeff * vy, tz - 0.5 * wz + coeff * vz, px, py, pz])
 
 
 def body_twist(motion: np.ndarray, seconds: float) -> np.ndarray:
