@@ -327,7 +327,8 @@ SettingsTable<ObservabilityOptions> validation_settings() {
       number("significance", &ObservabilityOptions::significance, "(0, 100]", "",
              "z a push must be rejected by for its direction to count as pinned down; and by which a first motion's "
              "points must fit an alignment from a shifted start better than standing still's (or that start better "
-             "than its mirror image about standing still)"),
+             "than its mirror image about standing still), and a frame's points the lines' motion better than their "
+             "own alignment on the other side of standing still, for it to confirm the lines' direction"),
   }};
 }
 

@@ -198,6 +198,7 @@ struct MotionValidation::Judgement {
   int open = kAllAxes;   // the directions not confirmed (open_directions)
   int reversed = 0, leaning = 0;
   int unpinned = 0;  // open directions the lines' own test leaves open and the points put elsewhere
+  int two_way = 0;   // open translations the points put the other way while fitting the lines' motion as well
 };
 
 Observability MotionValidation::observe(const ValidationFrame& frame, const PassOutcome& outcome,
@@ -218,10 +219,11 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
 int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
                                       const Observability& obs, const PointMapTracker& point_map,
                                       const RigidTransform* by_points, const Mat6& points_covariance,
-                                      int* reversed, int* leaning, int* unpinned) const {
+                                      int* reversed, int* leaning, int* unpinned, int* two_way) const {
   *reversed = 0;
   *leaning = 0;
   *unpinned = 0;
+  *two_way = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
   // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
@@ -260,8 +262,15 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction, a lean), and the points confirm the lines.
+  // Unless the alignment lies on the other side of standing still and the points fit the lines' motion no better by
+  // validation.significance standard errors: they then fit two motions mirrored about standing still alike and cannot
+  // tell which way the scan travelled; nothing confirms the lines' direction there.
   if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {
-    open = 0;
+    if (judged && *reversed != 0 &&
+        point_map.fit_advantage(*frame.points, frame.previous_pose, outcome.best, *by_points) <
+            lines_.config().validation.significance)
+      *two_way = *reversed;
+    open = *two_way;
     *reversed = 0;
     *unpinned = 0;
   }
@@ -332,7 +341,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   const Correspondences& corr = judgement.corr;
   const Observability& obs = judgement.obs;
   const int open = judgement.open;
-  const int reversed = judgement.reversed, leaning = judgement.leaning, unpinned = judgement.unpinned;
+  const int reversed = judgement.reversed, leaning = judgement.leaning, unpinned = judgement.unpinned,
+            two_way = judgement.two_way;
   if (judged && outcome->have && outcome->held_directions > 0)
     hold_at_the_map(frame, by_points, points_covariance, outcome, &out);
   st->observability = obs.z;
@@ -347,6 +357,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     char why[200];
     std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
                   (open & reversed) != 0    ? "the point map's alignment moves the other way"
+                  : (open & ~two_way) == 0  ? "the point map fits the lines' motion and its own the other way alike"
                   : (open & ~leaning) == 0  ? "McNemar z under validation.significance, the point map's alignment "
                                               "leaning to standing still"
                   : (open & ~unpinned) == 0 ? "McNemar z under validation.significance, the point map's alignment "
@@ -357,7 +368,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     // A first motion the lines confirm along no axis is the points' where they showed the way the scan travelled.
     const bool points_travelled = aligned && travelled && open == kAllAxes;
     if ((!judged && !frame.guessed && (open & reversed) == 0 && !points_travelled) ||
-        (judged && (open & ~leaning) == 0)) {
+        (judged && (open & ~leaning & ~two_way) == 0)) {
       // Flagged: nothing better to hold the translations at (the prediction; a one-scan map's lean, not reversal; a
       // judging map's alignment leaning to standing still where the lines do not pin the motion down).
       // A first motion's rotations the lines leave open are the points', where they resolve them: the lines' rotation
@@ -416,7 +427,8 @@ void MotionValidation::judge(const ValidationFrame& frame, const PassOutcome& ou
                              const RigidTransform* points, const Mat6& points_covariance, Judgement* judgement) const {
   judgement->obs = observe(frame, outcome, &judgement->corr);
   judgement->open = open_directions(frame, outcome, judgement->obs, point_map, points, points_covariance,
-                                    &judgement->reversed, &judgement->leaning, &judgement->unpinned);
+                                    &judgement->reversed, &judgement->leaning, &judgement->unpinned,
+                                    &judgement->two_way);
 }
 
 void MotionValidation::register_from_points(const ValidationFrame& frame, const PointMapTracker& point_map,

@@ -141,6 +141,11 @@ bool PointMapTracker::fits_as_well(const std::vector<Vec3>& points, const RigidT
   return point_cost(map_, checked, previous_pose * a, sigma) <= point_cost(map_, checked, previous_pose * b, sigma);
 }
 
+double PointMapTracker::fit_advantage(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
+                                      const RigidTransform& a, const RigidTransform& b) const {
+  return point_cost_advantage(map_, thinned(points), previous_pose * a, previous_pose * b, model_error_.sigma());
+}
+
 void PointMapTracker::add(const std::vector<Vec3>& points, const RigidTransform& pose,
                           const RigidTransform& predicted, const RigidTransform& registered) {
   if (!options_.enabled) return;

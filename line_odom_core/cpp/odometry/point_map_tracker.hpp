@@ -44,6 +44,9 @@ class PointMapTracker {
   // Whether `points` fit the map at least as well at motion `a` as at `b` (point_cost; both after `previous_pose`).
   bool fits_as_well(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                     const RigidTransform& b) const;
+  // How many standard errors better `points` fit the map at motion `a` than at `b` (point_cost_advantage).
+  double fit_advantage(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
+                       const RigidTransform& b) const;
   // A frame done: its points at odometry pose `pose` (at place_of(pose) on the map); `predicted` against `registered`
   // tells the motion model's error.
   void add(const std::vector<Vec3>& points, const RigidTransform& pose, const RigidTransform& predicted,
