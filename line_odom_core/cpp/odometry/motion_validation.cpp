@@ -216,19 +216,22 @@ Observability MotionValidation::observe(const ValidationFrame& frame, const Pass
                             config.validation.significance);
 }
 
-int MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
-                                      const Observability& obs, const PointMapTracker& point_map,
-                                      const RigidTransform* by_points, const Mat6& points_covariance,
-                                      int* reversed, int* leaning, int* unpinned, int* two_way) const {
-  *reversed = 0;
-  *leaning = 0;
-  *unpinned = 0;
-  *two_way = 0;
+void MotionValidation::open_directions(const ValidationFrame& frame, const PassOutcome& outcome,
+                                       const PointMapTracker& point_map, const RigidTransform* by_points,
+                                       const Mat6& points_covariance, Judgement* judgement) const {
+  const Observability& obs = judgement->obs;
+  int& reversed = judgement->reversed;
+  int& unpinned = judgement->unpinned;
+  int& two_way = judgement->two_way;
+  reversed = unpinned = two_way = judgement->leaning = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
   // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
   // is not taken. The lines alone judge after a frame that stayed out of the map: its place on the map is not known.
-  if (by_points == nullptr || !point_map.holds_last_scan()) return obs.unobserved;
+  if (by_points == nullptr || !point_map.holds_last_scan()) {
+    judgement->open = obs.unobserved;
+    return;
+  }
   const bool judged = judges(frame, point_map, by_points);  // else a first motion: only the reversal below
   // Evidence the intersection inliers did not produce: where the points' motion lies farther from the lines' than the
   // tolerance, or on the other side of standing still (reversed_translation), the lines' motion is not taken; only
@@ -236,10 +239,10 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   // down, they may not: their motion there is no evidence).
   const double tolerance = observability_push(outcome.best, lines_.config().validation);
   const int resolved = resolved_axes(points_covariance, tolerance, obs.lever);
-  *reversed = reversed_translation(outcome.best, *by_points, points_covariance,
-                                   lines_.config().ransac.inlier_threshold) &
-              resolved;
-  int open = *reversed;
+  reversed =
+      reversed_translation(outcome.best, *by_points, points_covariance, lines_.config().ransac.inlier_threshold) &
+      resolved;
+  int open = reversed;
   int lean = 0;
   if (judged) {
     // A rotation apart by the tolerance at the scene's range, not only at the meeting lines' (on a sparse scan those
@@ -251,14 +254,14 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
     // motion: agreeing with the lines there to the tolerance confirms nothing (the lines' own test decides).
     const double basin = point_map.alignment_kernel_scale();
     lean = (leaning_translation(outcome.best, *by_points, basin) & apart) |
-           (basin > tolerance ? within_basin(*by_points, basin) & ~apart & ~*reversed : 0);
+           (basin > tolerance ? within_basin(*by_points, basin) & ~apart & ~reversed : 0);
     open |= apart & ~lean;
     // Along a direction the lines' own test leaves open, agreeing with the points to the tolerance only says that the
     // lines' valley reaches the points' motion: where the points resolve it, do not lean and put it farther than their
     // resolution (a third of the tolerance) from the lines', the lines' motion there is not confirmed either.
-    *unpinned = obs.unobserved & resolved & ~lean & ~within_basin(*by_points, basin) &
-                beyond_points_noise(outcome.best, *by_points, points_covariance, tolerance / 3.0, lever) & ~open;
-    open |= *unpinned;
+    unpinned = obs.unobserved & resolved & ~lean & ~within_basin(*by_points, basin) &
+               beyond_points_noise(outcome.best, *by_points, points_covariance, tolerance / 3.0, lever) & ~open;
+    open |= unpinned;
   }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction, a lean), and the points confirm the lines.
@@ -266,17 +269,17 @@ int MotionValidation::open_directions(const ValidationFrame& frame, const PassOu
   // validation.significance standard errors: they then fit two motions mirrored about standing still alike and cannot
   // tell which way the scan travelled; nothing confirms the lines' direction there.
   if (open != 0 && point_map.fits_as_well(*frame.points, frame.previous_pose, outcome.best, *by_points)) {
-    if (judged && *reversed != 0 &&
+    if (judged && reversed != 0 &&
         point_map.fit_advantage(*frame.points, frame.previous_pose, outcome.best, *by_points) <
             lines_.config().validation.significance)
-      *two_way = *reversed;
-    open = *two_way;
-    *reversed = 0;
-    *unpinned = 0;
+      two_way = reversed;
+    open = two_way;
+    reversed = 0;
+    unpinned = 0;
   }
   // Where the points lean, they cannot tell the lines' motion from standing still: the lines' own test decides there.
-  *leaning = obs.unobserved & lean;
-  return judged ? open | *leaning : obs.unobserved | open;
+  judgement->leaning = obs.unobserved & lean;
+  judgement->open = judged ? open | judgement->leaning : obs.unobserved | open;
 }
 
 Validated MotionValidation::validate(const ValidationFrame& frame, const PointMapTracker& point_map,
@@ -426,9 +429,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
 void MotionValidation::judge(const ValidationFrame& frame, const PassOutcome& outcome, const PointMapTracker& point_map,
                              const RigidTransform* points, const Mat6& points_covariance, Judgement* judgement) const {
   judgement->obs = observe(frame, outcome, &judgement->corr);
-  judgement->open = open_directions(frame, outcome, judgement->obs, point_map, points, points_covariance,
-                                    &judgement->reversed, &judgement->leaning, &judgement->unpinned,
-                                    &judgement->two_way);
+  open_directions(frame, outcome, point_map, points, points_covariance, judgement);
 }
 
 void MotionValidation::register_from_points(const ValidationFrame& frame, const PointMapTracker& point_map,

@@ -79,19 +79,19 @@ class MotionValidation {
                             Judgement* judgement, FrameStats* st) const;
   // McNemar's test of `outcome` on the last pass's candidates under its motion (filled into corr).
   Observability observe(const ValidationFrame& frame, const PassOutcome& outcome, Correspondences* corr) const;
-  // The directions (bits of xi) along which `outcome` is not confirmed: those the points' motion (nullable) puts
-  // farther than the tolerance, where they resolve it (points_covariance) and do not fit the lines' motion as well,
-  // and the resolved translation axes along which they lie on the other side of standing still (also into
-  // *reversed); without it, and at a first motion, those `obs` leaves open. Where the points lie short of the lines'
-  // translation within the alignment kernel's width of standing still (a lean), or anywhere within it while it is wider
-  // than the tolerance, they do not judge: those axes `obs` leaves open are open, into *leaning (flagged at the lines'
-  // motion, not held at the points'). Directions `obs` leaves open that the points resolve outside that width and put
-  // farther than a third of the tolerance from the lines' are open too, into *unpinned. A judged frame's axes the points
-  // put on the other side of standing still while fitting the lines' motion as well stay open, into *two_way (flagged
-  // at the lines' motion).
-  int open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const Observability& obs,
-                      const PointMapTracker& point_map, const RigidTransform* by_points,
-                      const Mat6& points_covariance, int* reversed, int* leaning, int* unpinned, int* two_way) const;
+  // Into judgement->open, the directions (bits of xi) along which `outcome` is not confirmed (judgement->obs, McNemar's
+  // test, already in): those the points' motion (nullable) puts farther than the tolerance, where they resolve it
+  // (points_covariance) and do not fit the lines' motion as well, and the resolved translation axes along which they
+  // lie on the other side of standing still (also into ->reversed); without it, and at a first motion, those `obs`
+  // leaves open. Where the points lie short of the lines' translation within the alignment kernel's width of standing
+  // still (a lean), or anywhere within it while it is wider than the tolerance, they do not judge: those axes `obs`
+  // leaves open are open, into ->leaning (flagged at the lines' motion, not held at the points'). Directions `obs`
+  // leaves open that the points resolve outside that width and put farther than a third of the tolerance from the
+  // lines' are open too, into ->unpinned. A judged frame's axes the points put on the other side of standing still
+  // while fitting the lines' motion as well, not better by validation.significance, stay open, into ->two_way
+  // (flagged at the lines' motion).
+  void open_directions(const ValidationFrame& frame, const PassOutcome& outcome, const PointMapTracker& point_map,
+                       const RigidTransform* by_points, const Mat6& points_covariance, Judgement* judgement) const;
 
   // A judged frame whose refinement held directions: its rotations held at the point map's alignment `by_points`, the
   // velocity's unmeasured translations and the side of the travel (held_side) too, where the points resolve them.
