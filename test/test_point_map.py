@@ -48,3 +48,41 @@ def test_bad_arguments_are_refused_naming_them():
         _testing.voxel_map_nearest(np.zeros((1, 3)), 0.0, 20, np.zeros((1, 3)), 1.0)
     with pytest.raises(ValueError, match="max_points_per_voxel"):
         _testing.voxel_map_nearest(np.zeros((1, 3)), 1.0, 0, np.zeros((1, 3)), 1.0)
+
+
+def _street_scan(position_x: float) -> np.ndarray:
+    """A sparse scan (seven rings down to the ground, two up) from (position_x, 0) at 1.73 m over flat ground, of the
+    ground and six poles, in the sensor's frame: its ground rings are the same circles wherever the sensor stands."""
+    height = 1.73
+    ring_elevations = np.radians([-2.0, -5.5, -9.0, -12.5, -16.0, -19.5, -23.0, 1.0, 2.0])
+    azimuths = np.radians(np.arange(0.0, 360.0, 0.2))
+    ground = []
+    for elevation in ring_elevations[ring_elevations < 0]:
+        r = height / np.tan(-elevation)
+        ground.append(np.c_[r * np.cos(azimuths), r * np.sin(azimuths), np.full(azimuths.size, -height)])
+    poles = np.array([[8.0, 4.0], [12.0, -5.0], [-6.0, 7.0], [15.0, 8.0], [-10.0, -6.0], [5.0, -9.0]])
+    pole_points = []
+    for px, py in poles - [position_x, 0.0]:
+        d = np.hypot(px, py)
+        toward_sensor = -np.array([px, py]) / d
+        for elevation in ring_elevations:
+            z = d * np.tan(elevation)
+            if z > -height:
+                for side in (-0.05, 0.05):  # two returns across the pole's face
+                    offset = 0.1 * toward_sensor + side * np.array([-toward_sensor[1], toward_sensor[0]])
+                    pole_points.append([px + offset[0], py + offset[1], z])
+    return np.vstack(ground + [np.array(pole_points)])
+
+
+def test_ring_arcs_along_the_ground_do_not_hold_a_scan_where_the_last_one_was():
+    """A sparse scan's rings on the ground are where the sensor put them, not where the world is: moved 0.3 m along
+    the street, the new scan's ground rings lie exactly on the last scan's (in the sensor frame). Matched point to
+    point they hold the alignment near standing still; as the ground's plane (the map's arcs along the ground plane
+    its scan was measured over) they say only where the ground is, and the poles place the scan."""
+    last, current = _street_scan(0.0), _street_scan(0.3)
+    ground = np.array([0.0, 0.0, 1.0, 1.73])  # z = -1.73 in the sensor's frame
+    with_ground = _testing.point_map_alignment(last, ground, 1.0, current, np.eye(4), 1.0)
+    without = _testing.point_map_alignment(last, None, 1.0, current, np.eye(4), 1.0)
+    assert abs(with_ground[0, 3] - 0.3) < 0.03, with_ground[:3, 3]
+    assert abs(with_ground[1, 3]) < 0.03 and abs(with_ground[2, 3]) < 0.03, with_ground[:3, 3]
+    assert without[0, 3] < 0.15, without[:3, 3]  # the lean this removes

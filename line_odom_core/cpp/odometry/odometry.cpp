@@ -11,6 +11,7 @@
 
 #include "common/stopwatch.hpp"
 #include "features/line_selection.hpp"
+#include "features/scan_directions.hpp"
 #include "odometry/engine_settings.hpp"
 #include "odometry/frame_features.hpp"
 #include "odometry/motion_fusion.hpp"
@@ -376,6 +377,8 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
   request.surface = points_refining();
   request.points = s.point_map.enabled();
   extract_frame_features(image, config_, request, pool_.get(), &scan, &st);
+  Plane scan_ground;  // the point map takes its points on it as the ground's plane (VoxelPointMap::plane)
+  const Plane* ground = ground_plane(scan.features, &scan_ground) ? &scan_ground : nullptr;
   s.scans.fit_step = next_fitting_step(st.h_lines + st.v_lines, s.scans.fit_step, reg.max_lines);
 
   if (s.frames == 0) {  // first frame: it defines the odometry frame (with the reset pose)
@@ -517,7 +520,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     if (s.point_map.enabled() && (at_pose || validated.judged) && (sweep == nullptr || !first_motion)) {
       Stopwatch stage;
       if (!at_pose) s.point_map.reanchor(s.pose, place_on_map(validated, check.previous_pose, result.delta));
-      s.point_map.add(scan.points, s.pose, prediction, result.delta);
+      s.point_map.add(scan.points, ground, s.pose, prediction, result.delta);
       st.map_entry = at_pose ? "pose" : "points";
       st.ms.validation += stage.ms();
     } else {
@@ -526,7 +529,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
   }
   if (s.frames == 0) {
     if (sweep == nullptr && s.point_map.enabled()) {
-      s.point_map.add(scan.points, s.pose, {}, {});
+      s.point_map.add(scan.points, ground, s.pose, {}, {});
       st.map_entry = "pose";
     }
   }

@@ -74,6 +74,7 @@ struct PointMapOptions {
   bool enabled = true;
   double voxel = 0.0;              // m: the map's cubes; 0: sensor.max_range / 100 (KISS-ICP's resolution)
   int max_points_per_voxel = 20;
+  bool ground_planes = false;  // points on the scan's ground plane matched to the ground's plane (VoxelPointMap::plane)
   PointAlignmentOptions alignment;
 };
 

@@ -146,11 +146,12 @@ double PointMapTracker::fit_advantage(const std::vector<Vec3>& points, const Rig
   return point_cost_advantage(map_, thinned(points), previous_pose * a, previous_pose * b, model_error_.sigma());
 }
 
-void PointMapTracker::add(const std::vector<Vec3>& points, const RigidTransform& pose,
+void PointMapTracker::add(const std::vector<Vec3>& points, const Plane* ground, const RigidTransform& pose,
                           const RigidTransform& predicted, const RigidTransform& registered) {
   if (!options_.enabled) return;
   model_error_.add(predicted, registered);
-  map_.add(voxel_downsample(points, kMapVoxel * voxel_), place_of(pose), max_range_);
+  map_.add(voxel_downsample(points, kMapVoxel * voxel_), place_of(pose), max_range_,
+           options_.ground_planes ? ground : nullptr);
   holds_last_scan_ = true;
 }
 

@@ -47,10 +47,10 @@ class PointMapTracker {
   // How many standard errors better `points` fit the map at motion `a` than at `b` (point_cost_advantage).
   double fit_advantage(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                        const RigidTransform& b) const;
-  // A frame done: its points at odometry pose `pose` (at place_of(pose) on the map); `predicted` against `registered`
-  // tells the motion model's error.
-  void add(const std::vector<Vec3>& points, const RigidTransform& pose, const RigidTransform& predicted,
-           const RigidTransform& registered);
+  // A frame done: its points at odometry pose `pose` (at place_of(pose) on the map), measured over `ground` (nullable,
+  // sensor frame; point_map.ground_planes); `predicted` against `registered` tells the motion model's error.
+  void add(const std::vector<Vec3>& points, const Plane* ground, const RigidTransform& pose,
+           const RigidTransform& predicted, const RigidTransform& registered);
   // The scan at odometry pose `pose` sits at `place` on the map, and the scans after it relative to it.
   void reanchor(const RigidTransform& pose, const RigidTransform& place) { map_from_odometry_ = place * pose.inverse(); }
   // A frame that stays out of the map.

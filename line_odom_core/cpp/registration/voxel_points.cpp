@@ -22,8 +22,10 @@ void VoxelPointMap::rebuild_table() {
   }
 }
 
-void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& pose, double max_distance) {
+void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& pose, double max_distance,
+                        const Plane* ground) {
   if (voxels_.empty()) table_.reset(points.size());
+  const Plane ground_here = ground != nullptr ? ground->normalized().moved(pose) : Plane{};
   for (const Vec3& p : points) {
     const Vec3 q = pose.apply(p);
     if (!q.allFinite()) continue;
@@ -35,7 +37,11 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
       points_.resize(points_.size() + per_voxel_);
     }
     Voxel& v = voxels_[slot];
-    if (v.count < per_voxel_) points_[v.first + v.count++] = q;  // (its plane is computed again at the new count)
+    if (v.count == per_voxel_) continue;
+    const bool on_ground = ground != nullptr && std::abs(ground_here.signed_distance(q)) <= voxel_;
+    v.on_ground = (v.count == 0 || v.on_ground) && on_ground;
+    if (on_ground) v.ground_normal = ground_here.n;
+    points_[v.first + v.count++] = q;  // (its plane is computed again at the new count)
   }
   // Drop the voxels out of the sensor's reach once they are a quarter of the map (they are never near a scan's points;
   // dropping compacts the points and builds the table again).
@@ -111,27 +117,32 @@ bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_po
 
 bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal) const {
   // As SurfaceMap's voxel planes: at least kMinPlanePoints points whose scatter's eigenvalues l0 <= l1 <= l2 spread
-  // over two directions, (l1 - l0) / l2 >= kMinPlanarity.
+  // over two directions, (l1 - l0) / l2 >= kMinPlanarity. Else on the ground, a single point or points along one
+  // direction (l1 < kMinPlanarity l2) within 30 degrees of it: a ring's arc.
   constexpr int kMinPlanePoints = 5;
   constexpr double kMinPlanarity = 0.1;
+  constexpr double kGroundArcSine = 0.5;
   const Voxel& v = voxels_[index];
   if (v.plane_count != v.count) {
     v.plane_count = v.count;
-    v.planar = false;
-    if (v.count >= kMinPlanePoints) {
-      Vec3 m = Vec3::Zero();
-      for (int k = 0; k < v.count; ++k) m += points_[v.first + k];
-      m /= v.count;
-      Mat3 scatter = Mat3::Zero();
-      for (int k = 0; k < v.count; ++k) {
-        const Vec3 d = points_[v.first + k] - m;
-        scatter += d * d.transpose();
-      }
-      const Eigen::SelfAdjointEigenSolver<Mat3> es(scatter);
-      const Vec3 l = es.eigenvalues();
-      v.mean = m;
-      v.normal = es.eigenvectors().col(0);
-      v.planar = l(2) > 0.0 && (l(1) - l(0)) / l(2) >= kMinPlanarity;
+    Vec3 m = Vec3::Zero();
+    for (int k = 0; k < v.count; ++k) m += points_[v.first + k];
+    m /= v.count;
+    Mat3 scatter = Mat3::Zero();
+    for (int k = 0; k < v.count; ++k) {
+      const Vec3 d = points_[v.first + k] - m;
+      scatter += d * d.transpose();
+    }
+    const Eigen::SelfAdjointEigenSolver<Mat3> es(scatter);
+    const Vec3 l = es.eigenvalues();
+    v.mean = m;
+    v.normal = es.eigenvectors().col(0);
+    v.planar = v.count >= kMinPlanePoints && l(2) > 0.0 && (l(1) - l(0)) / l(2) >= kMinPlanarity;
+    const bool along_ground = !(l(2) > 0.0) || (l(1) < kMinPlanarity * l(2) &&
+                                                std::abs(es.eigenvectors().col(2).dot(v.ground_normal)) < kGroundArcSine);
+    if (!v.planar && v.on_ground && along_ground) {
+      v.planar = true;
+      v.normal = v.ground_normal;
     }
   }
   *mean = v.mean;

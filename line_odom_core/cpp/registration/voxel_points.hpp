@@ -18,8 +18,10 @@ class VoxelPointMap {
   VoxelPointMap(double voxel, int max_points_per_voxel) : voxel_(voxel), per_voxel_(max_points_per_voxel) {}
 
   // Adds `points` (sensor frame) at `pose` (T_world_sensor), up to the voxel's capacity, then drops the voxels
-  // farther than `max_distance` from the pose's position.
-  void add(const std::vector<Vec3>& points, const RigidTransform& pose, double max_distance);
+  // farther than `max_distance` from the pose's position. `ground` (nullable, sensor frame): the ground plane the
+  // points were measured over (ground_plane of their scan's features).
+  void add(const std::vector<Vec3>& points, const RigidTransform& pose, double max_distance,
+           const Plane* ground = nullptr);
   void clear();
   bool empty() const { return voxels_.empty(); }
   std::size_t voxels() const { return voxels_.size(); }
@@ -30,7 +32,10 @@ class VoxelPointMap {
   // `voxel` (nullable): the index of the voxel holding it.
   bool nearest(const Vec3& q, double max_distance, Vec3* nearest_point, int* voxel = nullptr) const;
   // The plane of a voxel's points (mean and unit normal), computed once per change of the voxel: false when they are
-  // too few or do not spread over a plane (a single ring's arc, a pole).
+  // too few or do not spread over a plane (a single ring's arc, a pole). Points on the ground (within a voxel of the
+  // ground plane of the scans that added them) that are one point or run along it (a ring's arc) are the ground's plane
+  // there: where along the ground a ring sits is where the sensor put it, not where the world is (matched point to
+  // point, a sparse scan's rings would hold it at the last scan's place).
   bool plane(int voxel, Vec3* mean, Vec3* normal) const;
 
  private:
@@ -38,6 +43,8 @@ class VoxelPointMap {
     std::int64_t x, y, z;
     int first;  // into points_: per_voxel_ slots from here
     int count;
+    bool on_ground = false;        // every point within a voxel of its scan's ground plane
+    Vec3 ground_normal = Vec3::Zero();
     mutable int plane_count = -1;  // the count its plane was computed at
     mutable bool planar = false;
     mutable Vec3 mean = Vec3::Zero(), normal = Vec3::Zero();

@@ -20,6 +20,7 @@
 #include "odometry/motion_persistence.hpp"
 #include "odometry/odometry.hpp"
 #include "registration/candidates.hpp"
+#include "registration/point_alignment.hpp"
 #include "registration/voxel_points.hpp"
 #include "testing/ransac_examples.hpp"
 #include "testing/solver_benchmark.hpp"
@@ -252,6 +253,27 @@ std::vector<std::vector<std::tuple<int, int, double>>> candidate_pairs(
   return out;
 }
 
+// align_points (point_alignment.hpp) of `scan` (sensor frame) from `initial_pose` to a VoxelPointMap of cubes of
+// `voxel` holding `map_points` added at the identity, measured over `ground` (a, b, c, d: a x + b y + c z + d = 0;
+// None: no ground known): the pose it ends at.
+Pose point_map_alignment(const Points& map_points, std::optional<Eigen::Vector4d> ground, double voxel,
+                         const Points& scan, const Pose& initial_pose, double sigma) {
+  if (!(voxel > 0.0)) throw py::value_error("voxel: expected > 0 (m)");
+  if (!(sigma > 0.0)) throw py::value_error("sigma: expected > 0 (m)");
+  auto rows = [](const Points& points) {
+    std::vector<line_odom::Vec3> out(static_cast<std::size_t>(points.rows()));
+    for (Eigen::Index i = 0; i < points.rows(); ++i) out[static_cast<std::size_t>(i)] = points.row(i).transpose();
+    return out;
+  };
+  line_odom::VoxelPointMap map(voxel, 20);
+  line_odom::Plane plane;
+  if (ground) plane = {ground->head<3>(), (*ground)(3)};
+  map.add(rows(map_points), line_odom::RigidTransform::identity(), 1e9, ground ? &plane : nullptr);
+  const line_odom::PointAlignment aligned = line_odom::align_points(
+      map, rows(scan), line_odom::RigidTransform::from_matrix(initial_pose), sigma, line_odom::PointAlignmentOptions{});
+  return aligned.pose.matrix();
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_testing, m) {
@@ -285,6 +307,11 @@ PYBIND11_MODULE(_testing, m) {
         py::arg("queries"), py::arg("max_distance"),
         "The local point map's nearest-point lookup (voxel_points.hpp) over `points` (N, 3) in cubes of `voxel`: for each "
         "query (M, 3), the map point returned within max_distance (NaN where none) and its voxel's index (-1).");
+  m.def("point_map_alignment", &point_map_alignment, py::arg("map_points"), py::arg("ground"), py::arg("voxel"),
+        py::arg("scan"), py::arg("initial_pose"), py::arg("sigma"),
+        "The point map's alignment (point_alignment.hpp) of `scan` (N, 3) from initial_pose (4x4) to a map of "
+        "`map_points` (M, 3) in cubes of `voxel`, measured over the plane `ground` (a, b, c, d) or None, its kernel "
+        "from `sigma`: the 4x4 pose it ends at.");
   m.def("candidate_pairs", &candidate_pairs, py::arg("segments_a"), py::arg("normals_a"), py::arg("segments_b"),
         py::arg("normals_b"), py::arg("guesses"), py::arg("max_distances"), py::arg("max_pairs_per_line"),
         "The candidate search (candidates.hpp) of the lines of frame a (segments (N, 6), normals (N, 3), 0 where "
