@@ -36,6 +36,12 @@ def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...  # Od
 def voxel_map_nearest(points: npt.ArrayLike, voxel: float, max_points_per_voxel: int, queries: npt.ArrayLike,
                       max_distance: float) -> tuple[npt.NDArray[np.float64], list[int]]: ...
 
+# The point map's alignment (point_alignment.hpp) of scan (N, 3) from initial_pose (4x4) to a map of map_points (M, 3)
+# in cubes of `voxel` metres, measured over the plane ground (a, b, c, d) or None, its kernel from sigma: the 4x4 pose
+# it ends at.
+def point_map_alignment(map_points: npt.ArrayLike, ground: npt.ArrayLike | None, voxel: float, scan: npt.ArrayLike,
+                        initial_pose: npt.ArrayLike, sigma: float) -> npt.NDArray[np.float64]: ...
+
 # The candidate search (candidates.hpp) of the lines of frame a (segments (N, 6), normals (N, 3), 0 where unknown)
 # against those of frame b moved by each guess (4x4) within its distance, in turn on one index: per guess the pairs
 # (index in a, index in b, segment distance).

@@ -123,7 +123,10 @@ bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal) const {
   constexpr double kMinPlanarity = 0.1;
   constexpr double kGroundArcSine = 0.5;
   const Voxel& v = voxels_[index];
-  if (v.plane_count != v.count) {
+  if (v.plane_count != v.count && v.count < kMinPlanePoints && !v.on_ground) {
+    v.plane_count = v.count;
+    v.planar = false;
+  } else if (v.plane_count != v.count) {
     v.plane_count = v.count;
     Vec3 m = Vec3::Zero();
     for (int k = 0; k < v.count; ++k) m += points_[v.first + k];
