@@ -123,29 +123,30 @@ bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal) const {
   constexpr double kMinPlanarity = 0.1;
   constexpr double kGroundArcSine = 0.5;
   const Voxel& v = voxels_[index];
-  if (v.plane_count != v.count && v.count < kMinPlanePoints && !v.on_ground) {
+  if (v.plane_count != v.count) {
     v.plane_count = v.count;
     v.planar = false;
-  } else if (v.plane_count != v.count) {
-    v.plane_count = v.count;
-    Vec3 m = Vec3::Zero();
-    for (int k = 0; k < v.count; ++k) m += points_[v.first + k];
-    m /= v.count;
-    Mat3 scatter = Mat3::Zero();
-    for (int k = 0; k < v.count; ++k) {
-      const Vec3 d = points_[v.first + k] - m;
-      scatter += d * d.transpose();
-    }
-    const Eigen::SelfAdjointEigenSolver<Mat3> es(scatter);
-    const Vec3 l = es.eigenvalues();
-    v.mean = m;
-    v.normal = es.eigenvectors().col(0);
-    v.planar = v.count >= kMinPlanePoints && l(2) > 0.0 && (l(1) - l(0)) / l(2) >= kMinPlanarity;
-    const bool along_ground = !(l(2) > 0.0) || (l(1) < kMinPlanarity * l(2) &&
-                                                std::abs(es.eigenvectors().col(2).dot(v.ground_normal)) < kGroundArcSine);
-    if (!v.planar && v.on_ground && along_ground) {
-      v.planar = true;
-      v.normal = v.ground_normal;
+    if (v.count >= kMinPlanePoints || v.on_ground) {
+      Vec3 m = Vec3::Zero();
+      for (int k = 0; k < v.count; ++k) m += points_[v.first + k];
+      m /= v.count;
+      Mat3 scatter = Mat3::Zero();
+      for (int k = 0; k < v.count; ++k) {
+        const Vec3 d = points_[v.first + k] - m;
+        scatter += d * d.transpose();
+      }
+      const Eigen::SelfAdjointEigenSolver<Mat3> es(scatter);
+      const Vec3 l = es.eigenvalues();
+      v.mean = m;
+      v.normal = es.eigenvectors().col(0);
+      v.planar = v.count >= kMinPlanePoints && l(2) > 0.0 && (l(1) - l(0)) / l(2) >= kMinPlanarity;
+      const bool along_ground =
+          !(l(2) > 0.0) ||
+          (l(1) < kMinPlanarity * l(2) && std::abs(es.eigenvectors().col(2).dot(v.ground_normal)) < kGroundArcSine);
+      if (!v.planar && v.on_ground && along_ground) {
+        v.planar = true;
+        v.normal = v.ground_normal;
+      }
     }
   }
   *mean = v.mean;

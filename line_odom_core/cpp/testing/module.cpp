@@ -177,6 +177,12 @@ Motions motion_persistence(const Motions& motions, int window, const std::option
 
 using Points = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
 
+std::vector<line_odom::Vec3> vec3s(const Points& points) {
+  std::vector<line_odom::Vec3> out(static_cast<std::size_t>(points.rows()));
+  for (Eigen::Index i = 0; i < points.rows(); ++i) out[static_cast<std::size_t>(i)] = points.row(i).transpose();
+  return out;
+}
+
 // VoxelPointMap (voxel_points.hpp) holding `points` at the identity: for each query, the map point nearest() returns
 // within max_distance (NaN where none) and the index of its voxel (-1).
 py::tuple voxel_map_nearest(const Points& points, double voxel, int max_points_per_voxel, const Points& queries,
@@ -184,9 +190,7 @@ py::tuple voxel_map_nearest(const Points& points, double voxel, int max_points_p
   if (!(voxel > 0.0)) throw py::value_error("voxel: expected > 0 (m)");
   if (max_points_per_voxel < 1) throw py::value_error("max_points_per_voxel: expected >= 1");
   line_odom::VoxelPointMap map(voxel, max_points_per_voxel);
-  std::vector<line_odom::Vec3> added(static_cast<std::size_t>(points.rows()));
-  for (Eigen::Index i = 0; i < points.rows(); ++i) added[static_cast<std::size_t>(i)] = points.row(i).transpose();
-  map.add(added, line_odom::RigidTransform::identity(), 1e9);
+  map.add(vec3s(points), line_odom::RigidTransform::identity(), 1e9);
   Points nearest(queries.rows(), 3);
   std::vector<int> voxels(static_cast<std::size_t>(queries.rows()), -1);
   for (Eigen::Index i = 0; i < queries.rows(); ++i) {
@@ -260,17 +264,11 @@ Pose point_map_alignment(const Points& map_points, std::optional<Eigen::Vector4d
                          const Points& scan, const Pose& initial_pose, double sigma) {
   if (!(voxel > 0.0)) throw py::value_error("voxel: expected > 0 (m)");
   if (!(sigma > 0.0)) throw py::value_error("sigma: expected > 0 (m)");
-  auto rows = [](const Points& points) {
-    std::vector<line_odom::Vec3> out(static_cast<std::size_t>(points.rows()));
-    for (Eigen::Index i = 0; i < points.rows(); ++i) out[static_cast<std::size_t>(i)] = points.row(i).transpose();
-    return out;
-  };
   line_odom::VoxelPointMap map(voxel, 20);
-  line_odom::Plane plane;
-  if (ground) plane = {ground->head<3>(), (*ground)(3)};
-  map.add(rows(map_points), line_odom::RigidTransform::identity(), 1e9, ground ? &plane : nullptr);
+  const line_odom::Plane plane = ground ? py_types::plane_at(ground->data()) : line_odom::Plane{};
+  map.add(vec3s(map_points), line_odom::RigidTransform::identity(), 1e9, ground ? &plane : nullptr);
   const line_odom::PointAlignment aligned = line_odom::align_points(
-      map, rows(scan), line_odom::RigidTransform::from_matrix(initial_pose), sigma, line_odom::PointAlignmentOptions{});
+      map, vec3s(scan), line_odom::RigidTransform::from_matrix(initial_pose), sigma, line_odom::PointAlignmentOptions{});
   return aligned.pose.matrix();
 }
 
