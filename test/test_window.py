@@ -52,6 +52,25 @@ def test_sixteen_lasers_on_the_highway_with_a_window_of_three_scans():
     assert scans[0] == 0 and scans[1] == 1 and all(s >= 2 for s in scans[3:]), scans  # (the window fills up)
 
 
+def test_older_scans_are_taken_only_while_the_window_holds_fewer_lines_than_one_registration():
+    # With 32 of KITTI's lasers a scan registers about 2,300-2,600 lines (registration.max_lines 3000): two scans
+    # pass the budget, so the window of 3 takes 2; with 16 lasers (1,200-1,500 lines a scan) it takes 3; without the
+    # budget, 32 lasers take 3 again.
+    def window_scans(beams, overrides):
+        data = kitti_sequence("07")
+        odom = line_odom_core.Odometry(beams_config(beams, {"registration.window": 3, **overrides}))
+        stats = []
+        for i in range(6):
+            xyz, ring = kitti_beams(data, i, beams)
+            stats.append(odom.register_points(xyz, float(data.times[i]), ring=ring).stats)
+        assert all(s["registered_lines"] < 3000 for s in stats)
+        return [s["window_scans"] for s in stats]
+
+    assert window_scans(32, {})[3:] == [2, 2, 2]
+    assert window_scans(16, {})[3:] == [3, 3, 3]
+    assert window_scans(32, {"registration.max_lines": 0})[3:] == [3, 3, 3]
+
+
 def test_the_window_never_makes_the_sparse_highway_observable():
     # KITTI 04 at 1/36: the forward motion is held at the prediction on 8 frames (and the first motion flagged: the
     # lines do not pin it down, validation.*). Registered directly on the last

@@ -1,5 +1,6 @@
 #include "features/feature_window.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace line_odom {
@@ -40,10 +41,20 @@ void FeatureWindow::push(const ScanFeatures& next, const RigidTransform& delta, 
   while (entries_.size() > static_cast<std::size_t>(scans_)) entries_.pop_back();
 }
 
-ScanFeatures FeatureWindow::merged() const {
+std::size_t FeatureWindow::scans_within(int max_lines) const {
+  std::size_t scans = 0, lines = 0;
+  for (const Entry& e : entries_) {
+    if (scans > 0 && max_lines > 0 && lines >= static_cast<std::size_t>(max_lines)) break;
+    lines += e.features.h_lines.size() + e.features.v_lines.size();
+    ++scans;
+  }
+  return scans;
+}
+
+ScanFeatures FeatureWindow::merged(std::size_t scans) const {
   if (entries_.empty()) return {};
   ScanFeatures out = entries_.front().features;
-  for (std::size_t i = 1; i < entries_.size(); ++i) {
+  for (std::size_t i = 1; i < std::min(scans, entries_.size()); ++i) {
     const Entry& e = entries_[i];
     const int plane_offset = static_cast<int>(out.planes.size());
     for (const PlaneFeature& p : e.features.planes)

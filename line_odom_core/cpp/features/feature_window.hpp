@@ -25,9 +25,14 @@ class FeatureWindow {
   void clear() { entries_.clear(); }
   std::size_t size() const { return entries_.size(); }
 
-  // The newest scan's features followed by the older scans' lines and planes, in the newest scan's frame; an
-  // older line's normal cluster is the newest scan's cluster direction nearest to its normal (-1 beyond 45 deg).
-  ScanFeatures merged() const;
+  // How many of the scans, newest first, a registration takes: older ones while the lines taken number fewer than
+  // `max_lines` (registration.max_lines; 0: no bound). Older scans add lines where the newest has few; a scan with as
+  // many lines as one registration is given registers on its own (the paper's frame-to-frame registration).
+  std::size_t scans_within(int max_lines) const;
+  // The newest scan's features followed by the next `scans` - 1 older scans' lines and planes, in the newest scan's
+  // frame; an older line's normal cluster is the newest scan's cluster direction nearest to its normal (-1 beyond
+  // 45 deg).
+  ScanFeatures merged(std::size_t scans) const;
 
  private:
   struct Entry {

@@ -189,9 +189,10 @@ SettingsTable<RegistrationOptions> registration_settings() {
              "fitted only on the rows and columns that step keeps (each line still fitted to every point of its row "
              "or column; neighbouring rows on one surface give nearly the same intersections). 0 = all"),
       number("window", &RegistrationOptions::window, "[1, 10]", "scans",
-             "previous scans each scan is registered against: their lines and planes moved into the last scan's "
-             "frame by the estimated motions, kept only when the last scan alone observes every direction of the "
-             "result (1 = the last scan only, paper §6.3)"),
+             "previous scans each scan is registered against at most: their lines and planes moved into the last "
+             "scan's frame by the estimated motions, an older scan taken only while those taken hold fewer than "
+             "max_lines lines, the result kept only when the last scan alone observes every direction of it (1 = the "
+             "last scan only, paper §6.3)"),
       number("first_motion_pairs_per_line", &RegistrationOptions::first_motion_pairs_per_line, "[0, 100000]", "",
              "while there is no motion guess (the first motion after start or reset, searched from standing still), "
              "keep the k closest partners of each line within candidates.max_distance (0 = all of them, as in the "

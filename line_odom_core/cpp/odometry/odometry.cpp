@@ -257,17 +257,18 @@ PassOutcome Odometry::register_on_window(const ScanFeatures& cur, const RigidTra
                                          const RigidTransform& start, const RegistrationFrame& frame,
                                          FrameStats* st) const {
   const ScanHistory& scans = state_.scans;
-  if (scans.window.size() > 1 && state_.prediction.unmeasured_projector().isZero()) {
+  const std::size_t window_scans = scans.window.scans_within(config_.registration.max_lines);
+  if (window_scans > 1 && state_.prediction.unmeasured_projector().isZero()) {
     FrameStats window_stats = *st;
-    PassOutcome on_window =
-        lines_.register_features(scans.window.merged(), cur, prediction, start, true, frame, &window_stats);
+    PassOutcome on_window = lines_.register_features(scans.window.merged(window_scans), cur, prediction, start, true,
+                                                     frame, &window_stats);
     const bool kept = on_window.have && !on_window.stats.degenerate && on_window.held_directions == 0 &&
                       lines_.observes_every_direction(scans.previous, cur, on_window.best, &window_stats);
     st->ms = window_stats.ms;
     st->iterations = window_stats.iterations;
     if (kept) {
       *st = window_stats;
-      st->window_scans = static_cast<int>(scans.window.size());
+      st->window_scans = static_cast<int>(window_scans);
       return on_window;
     }
   }
@@ -444,7 +445,7 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
     // 4. The sweep corrected again at the registered motion (sensor.deskew_iterations).
     if (sweep != nullptr) {
       auto again = [&](const PassOutcome& first) {
-        const ScanFeatures merged = st.window_scans > 1 ? s.scans.window.merged() : ScanFeatures{};
+        const ScanFeatures merged = st.window_scans > 1 ? s.scans.window.merged(st.window_scans) : ScanFeatures{};
         return lines_.register_again(st.window_scans > 1 ? merged : s.scans.previous, scan.features, prediction,
                                      first.best, first, &st);
       };
