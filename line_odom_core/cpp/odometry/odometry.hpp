@@ -1,4 +1,5 @@
-// Frame-to-frame odometry with state (docs/DESIGN.md §2). Each frame is a short recipe over components:
+// Frame-to-frame odometry with state (docs/DESIGN.md §2). Each frame is a short recipe over components
+// (register_image, frame_pipeline.cpp):
 // organize -> (deskew) -> features -> predict -> register the lines (paper §6.3, motion_search.hpp beyond the
 // prediction's reach) -> check the lines pin the motion down, the local point map where they do not (validation) ->
 // fuse with the motion model -> refine on the points -> compose the pose. A failed or degenerate registration holds
@@ -8,6 +9,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -15,10 +17,13 @@
 #include "common/scan_features.hpp"
 #include "common/types.hpp"
 #include "common/worker_pool.hpp"
+#include "odometry/frame_features.hpp"
 #include "odometry/frame_result.hpp"
 #include "odometry/line_registration.hpp"
+#include "odometry/motion_fusion.hpp"
 #include "odometry/motion_prediction.hpp"
 #include "odometry/motion_search.hpp"
+#include "odometry/motion_validation.hpp"
 #include "odometry/odometry_config.hpp"
 #include "odometry/point_map_tracker.hpp"
 #include "odometry/scan_history.hpp"
@@ -109,10 +114,56 @@ class Odometry {
   const std::vector<Vec3>& last_points() const { return last_points_; }
 
  private:
-  // register_range_image; `sweep` (nullable): the image's sweep times, deskewed at sweep->velocity (moved again by the
-  // sweep correction at the registered motion).
+  // One frame's circumstances: fixed before its features are fitted (begin_frame), its prediction added (predict).
+  struct FrameInputs {
+    double stamp = 0.0, dt = 0.0;  // dt: since the previous frame
+    int organized_step = 1;
+    const RigidTransform* guess = nullptr;  // nullable, as register_points' arguments
+    const Mat3* rotation_guess = nullptr;
+    SweepTimes* sweep = nullptr;  // nullable: the image's sweep times (register_image)
+    bool guessed = false;           // a guess stands for the velocity
+    bool rotation_guessed = false;  // the prediction's turn is a gyro's
+    bool first_motion = false;      // no velocity before this frame
+    bool searching = false;         // the velocity's unmeasured directions are searched (search_unmeasured)
+    Mat6 unmeasured = Mat6::Zero();  // onto those directions
+    RigidTransform own_prediction;   // the motion model's, or the guess
+    RigidTransform prediction;       // turned by the rotation guess
+    RegistrationFrame registration;
+  };
+
+  // register_range_image (the guesses checked); `sweep` (nullable): the image's sweep times, deskewed at
+  // sweep->velocity (moved again by the sweep correction at the registered motion). The recipe over the steps below
+  // (frame_pipeline.cpp).
   FrameResult register_image(const RangeImage& image, double stamp, double organize_ms, int organized_step,
                              const RigidTransform* guess, const Mat3* rotation_guess, SweepTimes* sweep);
+  // The frame's inputs; drops a velocity older than registration.max_prediction_gap and takes a guess as one.
+  FrameInputs begin_frame(double stamp, int organized_step, const RigidTransform* guess, const Mat3* rotation_guess,
+                          SweepTimes* sweep);
+  // Its lines, planes, points (and coarse scan, surface) fitted; the next frame's fitting step chosen.
+  void extract_features(const RangeImage& image, const FrameInputs& in, FrameFeatures* scan, FrameStats* st);
+  // The first frame defines the odometry frame at the (reset) pose; its points enter the map there.
+  void enter_first_scan(const FrameFeatures& scan, const Plane* ground, const FrameInputs& in, FrameStats* st);
+  // The motion model's prediction (or the guess), turned by the rotation guess.
+  void predict(FrameInputs* in, FrameStats* st) const;
+  // The lines' registration, searched beyond the prediction's reach where it cannot reach (motion_search.hpp);
+  // `aligned_before`: set where the points were aligned to the map first (full resolution), the lines' start there.
+  PassOutcome register_lines(const FrameFeatures& scan, const FrameInputs& in,
+                             std::optional<MapAlignment>* aligned_before, FrameStats* st) const;
+  // The sweep corrected again at the registered motion (sensor.deskew_iterations), the lines registered again.
+  void correct_sweep_again(FrameFeatures* scan, const FrameInputs& in, PassOutcome* outcome, FrameStats* st);
+  // Do the lines pin the motion down; the point map where they do not (motion_validation.hpp).
+  Validated validate(FrameFeatures* scan, const FrameInputs& in, const std::optional<MapAlignment>& aligned_before,
+                     PassOutcome* outcome, FrameStats* st) const;
+  // The frame's motion and covariance, fused with the motion model; unconfirmed directions flagged and inflated.
+  FusedMotion fuse(const PassOutcome& outcome, const FrameInputs& in, const Validated& validated,
+                   FrameResult* result) const;
+  // The point-to-plane refinement (points.*) of a motion registered in full.
+  void refine_on_points(const FrameFeatures& scan, const FusedMotion& fused, FrameResult* result);
+  // The pose composed, the motion model and the sweep's trend told the motion, the scan entered into the point map.
+  void advance(const FrameFeatures& scan, const Plane* ground, const FrameInputs& in, const FusedMotion& fused,
+               const Validated& validated, FrameResult* result);
+  // The scan kept as the previous one (and in the window) for the next frame.
+  void keep_scan(FrameFeatures* scan, const FrameResult& result);
   template <typename Scalar>
   FrameResult register_sweep(const Scalar* data, std::size_t count, std::size_t stride, const std::int32_t* ring,
                              int rows, int cols, double stamp, const RigidTransform* guess,
