@@ -72,7 +72,8 @@ def check_held(res, prev_delta, config, unobserved_axis=None):
     if unobserved_axis is not None:
         along = (res.delta @ np.linalg.inv(prev_delta))[unobserved_axis, 3]
         assert abs(along) < 1e-3, (along, res.stats)
-        assert res.covariance[unobserved_axis, unobserved_axis] >= ts ** 2 * (1 - 1e-6), res.covariance
+        # (the held direction is the lines' weakest one: along the axis to within a fraction of a degree)
+        assert res.covariance[unobserved_axis, unobserved_axis] >= ts ** 2 * (1 - 1e-4), res.covariance
 
 
 @pytest.mark.parametrize("kind, kwargs", [

@@ -303,11 +303,12 @@ SettingsTable<PointMapOptions> point_map_settings() {
       number("voxel", &PointMapOptions::voxel, "0 (off) or [0.01, 100]", "m",
              "the map's cubes (0: sensor.max_range / 100)"),
       number("max_points_per_voxel", &PointMapOptions::max_points_per_voxel, "[1, 1000]", "", "points a cube keeps"),
-      flag("ground_planes", &PointMapOptions::ground_planes,
-           "match a cube's points to the ground's plane where they lie within a cube of their scan's ground plane (its "
-           "largest plane facing the sensor's z axis) and are one point or run along it, a ring's arc: where a sparse "
-           "scan's ring meets the ground is where the sensor put it, and matched point to point the rings hold a scan "
-           "at the last one's place; false: point to point, as KISS-ICP"),
+      choice("ground_planes", &PointMapOptions::ground_planes, {"never", "first_motion", "always"},
+             "match a cube's points to the ground's plane where they lie within a cube of their scan's ground plane "
+             "(its largest plane facing the sensor's z axis) and are one point or run along it, a ring's arc: where a "
+             "sparse scan's ring meets the ground is where the sensor put it, and matched point to point the rings "
+             "hold a scan at the last one's place. first_motion: in the first motion's alignment, where the map holds "
+             "one scan sampled by the same lasers; always: in every alignment; never: point to point, as KISS-ICP"),
       number("max_iterations", &PointMapOptions::alignment, &PointAlignmentOptions::max_iterations, "[1, 1000]", "",
              "Gauss-Newton iterations of an alignment"),
       number("initial_threshold", &PointMapOptions::alignment, &PointAlignmentOptions::initial_threshold,

@@ -74,7 +74,9 @@ struct PointMapOptions {
   bool enabled = true;
   double voxel = 0.0;              // m: the map's cubes; 0: sensor.max_range / 100 (KISS-ICP's resolution)
   int max_points_per_voxel = 20;
-  bool ground_planes = false;  // points on the scan's ground plane matched to the ground's plane (VoxelPointMap::plane)
+  // Points on the scan's ground plane matched to the ground's plane (VoxelPointMap::plane): "never", "first_motion"
+  // (in the first motion's alignment: PointMapTracker) or "always".
+  std::string ground_planes = "first_motion";
   PointAlignmentOptions alignment;
 };
 

@@ -27,6 +27,8 @@ std::vector<Vec3> spread(std::vector<Vec3> points, std::size_t budget) {
 
 PointMapTracker::PointMapTracker(const PointMapOptions& options, double max_range)
     : options_(options),
+      ground_always_(options.ground_planes == "always"),
+      ground_first_motion_(options.ground_planes != "never"),
       max_range_(max_range),
       voxel_(options.voxel > 0.0 ? options.voxel : max_range / 100.0),
       map_(voxel_, options.max_points_per_voxel),
@@ -60,7 +62,8 @@ bool PointMapTracker::align(const std::vector<Vec3>& points, const RigidTransfor
                             Mat6* covariance) const {
   if (!ready()) return false;
   const PointAlignment aligned =
-      align_points(map_, thinned(points), previous_pose * prediction, model_error_.sigma(), options_.alignment);
+      align_points(map_, thinned(points), previous_pose * prediction, model_error_.sigma(), options_.alignment,
+                   ground_always_);
   return accept(aligned, previous_pose, motion, matched, covariance);
 }
 
@@ -75,9 +78,11 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
   const double step = alignment_kernel_scale();
   const int steps = static_cast<int>(reach / step + 1e-9);
   const RigidTransform predicted_pose = previous_pose * prediction;
-  const PointAlignment from_prediction = align_points(map_, aligned_points, predicted_pose, sigma, options_.alignment);
+  const bool ground = ground_first_motion_;
+  const PointAlignment from_prediction =
+      align_points(map_, aligned_points, predicted_pose, sigma, options_.alignment, ground);
   PointAlignment best = from_prediction;
-  double best_cost = point_cost(map_, aligned_points, best.pose, sigma);
+  double best_cost = point_cost(map_, aligned_points, best.pose, sigma, ground);
   bool shifted = false;  // best is an alignment from a shifted start
   // The one-scan map's points were sampled by the same lasers from where the prediction (standing still) puts this
   // scan: there, and at any alignment ending in its basin, the points' cost is lowered by that coincidence whatever the
@@ -96,23 +101,25 @@ bool PointMapTracker::align_from_starts(const std::vector<Vec3>& points, const R
     double start_cost = std::numeric_limits<double>::infinity();
     for (int k = -steps; k <= steps; ++k) {
       if (k == 0) continue;
-      const double c = point_cost(map_, aligned_points, previous_pose * shifted_by(k * step), sigma);
+      const double c = point_cost(map_, aligned_points, previous_pose * shifted_by(k * step), sigma, ground);
       if (c < start_cost) start_cost = c, start_step = k;
     }
     if (!std::isfinite(start_cost)) continue;
     const RigidTransform start = shifted_by(start_step * step), mirror = shifted_by(-start_step * step);
-    const PointAlignment other = align_points(map_, aligned_points, previous_pose * start, sigma, options_.alignment);
+    const PointAlignment other =
+        align_points(map_, aligned_points, previous_pose * start, sigma, options_.alignment, ground);
     if (other.matched < kMinMatched || !other.pose.is_finite()) continue;
-    const double cost = point_cost(map_, aligned_points, other.pose, sigma);
+    const double cost = point_cost(map_, aligned_points, other.pose, sigma, ground);
     if (cost < best_cost) best_cost = cost, best = other, shifted = true;
     const bool beyond_basin = (other.pose.t - predicted_pose.t).norm() > step;
     if (beyond_basin && cost < travelled_cost &&
-        point_cost_advantage(map_, aligned_points, previous_pose * start, previous_pose * mirror, sigma) >=
+        point_cost_advantage(map_, aligned_points, previous_pose * start, previous_pose * mirror, sigma, ground) >=
             significance)
       travelled = other, travelled_cost = cost;
   }
   const bool shift_fits_better =
-      shifted && point_cost_advantage(map_, aligned_points, best.pose, from_prediction.pose, sigma) >= significance;
+      shifted &&
+      point_cost_advantage(map_, aligned_points, best.pose, from_prediction.pose, sigma, ground) >= significance;
   if (!shift_fits_better) {
     const bool have_travelled = std::isfinite(travelled_cost);
     best = have_travelled ? travelled : from_prediction;
@@ -138,12 +145,14 @@ bool PointMapTracker::fits_as_well(const std::vector<Vec3>& points, const RigidT
                                    const RigidTransform& a, const RigidTransform& b) const {
   const std::vector<Vec3> checked = thinned(points);
   const double sigma = model_error_.sigma();
-  return point_cost(map_, checked, previous_pose * a, sigma) <= point_cost(map_, checked, previous_pose * b, sigma);
+  return point_cost(map_, checked, previous_pose * a, sigma, ground_always_) <=
+         point_cost(map_, checked, previous_pose * b, sigma, ground_always_);
 }
 
 double PointMapTracker::fit_advantage(const std::vector<Vec3>& points, const RigidTransform& previous_pose,
                                       const RigidTransform& a, const RigidTransform& b) const {
-  return point_cost_advantage(map_, thinned(points), previous_pose * a, previous_pose * b, model_error_.sigma());
+  return point_cost_advantage(map_, thinned(points), previous_pose * a, previous_pose * b, model_error_.sigma(),
+                              ground_always_);
 }
 
 void PointMapTracker::add(const std::vector<Vec3>& points, const Plane* ground, const RigidTransform& pose,
@@ -151,7 +160,7 @@ void PointMapTracker::add(const std::vector<Vec3>& points, const Plane* ground, 
   if (!options_.enabled) return;
   model_error_.add(predicted, registered);
   map_.add(voxel_downsample(points, kMapVoxel * voxel_), place_of(pose), max_range_,
-           options_.ground_planes ? ground : nullptr);
+           ground_first_motion_ ? ground : nullptr);
   holds_last_scan_ = true;
 }
 

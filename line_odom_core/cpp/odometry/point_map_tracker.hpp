@@ -48,7 +48,8 @@ class PointMapTracker {
   double fit_advantage(const std::vector<Vec3>& points, const RigidTransform& previous_pose, const RigidTransform& a,
                        const RigidTransform& b) const;
   // A frame done: its points at odometry pose `pose` (at place_of(pose) on the map), measured over `ground` (nullable,
-  // sensor frame; point_map.ground_planes); `predicted` against `registered` tells the motion model's error.
+  // sensor frame; kept unless point_map.ground_planes is never); `predicted` against `registered` tells the motion
+  // model's error.
   void add(const std::vector<Vec3>& points, const Plane* ground, const RigidTransform& pose,
            const RigidTransform& predicted, const RigidTransform& registered);
   // The scan at odometry pose `pose` sits at `place` on the map, and the scans after it relative to it.
@@ -65,6 +66,10 @@ class PointMapTracker {
               Mat6* covariance) const;
 
   PointMapOptions options_;
+  // point_map.ground_planes: the cubes on the ground matched to its plane in every alignment and cost, or in the first
+  // motion's (align_from_starts) alone, where the map holds one scan sampled by the same lasers from where standing
+  // still puts this one and its rings hold the scan there most.
+  bool ground_always_, ground_first_motion_;
   double max_range_;
   double voxel_;
   VoxelPointMap map_;

@@ -22,12 +22,12 @@ struct Residual {
   double squared() const { return planar ? distance * distance : offset.squaredNorm(); }
 };
 
-bool residual_of(const VoxelPointMap& map, const Vec3& q, double max_distance, Residual* out) {
+bool residual_of(const VoxelPointMap& map, const Vec3& q, double max_distance, bool ground, Residual* out) {
   Vec3 nearest;
   int voxel = -1;
   if (!map.nearest(q, max_distance, &nearest, &voxel)) return false;
   Vec3 mean;
-  out->planar = map.plane(voxel, &mean, &out->normal);
+  out->planar = map.plane(voxel, &mean, &out->normal, ground);
   if (out->planar) out->distance = out->normal.dot(q - mean);
   else out->offset = q - nearest;
   return true;
@@ -42,7 +42,8 @@ double alignment_kernel_scale(const VoxelPointMap& map, double sigma) {
 }
 
 PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& points,
-                            const RigidTransform& initial_pose, double sigma, const PointAlignmentOptions& options) {
+                            const RigidTransform& initial_pose, double sigma, const PointAlignmentOptions& options,
+                            bool ground) {
   PointAlignment out;
   out.pose = initial_pose;
   if (map.empty() || points.empty() || !(sigma > 0.0)) return out;
@@ -57,7 +58,7 @@ PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& p
     for (const Vec3& p : points) {
       const Vec3 q = out.pose.apply(p);
       Residual r;
-      if (!residual_of(map, q, max_distance, &r)) continue;
+      if (!residual_of(map, q, max_distance, ground, &r)) continue;
       const double d2 = r.squared();
       const double w = kernel * kernel / ((kernel + d2) * (kernel + d2));
       weighted_squares += w * d2;
@@ -101,31 +102,33 @@ PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& p
 namespace {
 
 // One point's term of point_cost: its Geman-McClure cost, 1 without a map point within 3 sigma.
-double point_term(const VoxelPointMap& map, const Vec3& q, double sigma, double scale) {
+double point_term(const VoxelPointMap& map, const Vec3& q, double sigma, double scale, bool ground) {
   Residual r;
-  if (!residual_of(map, q, 3.0 * sigma, &r)) return 1.0;
+  if (!residual_of(map, q, 3.0 * sigma, ground, &r)) return 1.0;
   const double d2 = r.squared();
   return d2 / (scale * scale + d2);
 }
 
 }  // namespace
 
-double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma) {
+double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma,
+                  bool ground) {
   if (points.empty()) return 1.0;
   const double scale = alignment_kernel_scale(map, sigma);
   double cost = 0.0;
-  for (const Vec3& p : points) cost += point_term(map, pose.apply(p), sigma, scale);
+  for (const Vec3& p : points) cost += point_term(map, pose.apply(p), sigma, scale, ground);
   return cost / static_cast<double>(points.size());
 }
 
 double point_cost_advantage(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& better,
-                            const RigidTransform& worse, double sigma) {
+                            const RigidTransform& worse, double sigma, bool ground) {
   const double n = static_cast<double>(points.size());
   if (n < 2.0) return 0.0;
   const double scale = alignment_kernel_scale(map, sigma);
   double sum = 0.0, squares = 0.0;
   for (const Vec3& p : points) {
-    const double d = point_term(map, worse.apply(p), sigma, scale) - point_term(map, better.apply(p), sigma, scale);
+    const double d =
+        point_term(map, worse.apply(p), sigma, scale, ground) - point_term(map, better.apply(p), sigma, scale, ground);
     sum += d;
     squares += d * d;
   }

@@ -31,21 +31,23 @@ struct PointAlignment {
 
 // Gauss-Newton from `initial_pose` on the Geman-McClure-weighted distances of `points` (sensor frame) to their nearest
 // map points within 3 sigma (kernel scale sigma / 3, at least a quarter of the map's voxel): to the plane of that
-// point's voxel where its points lie on one, else to the point.
+// point's voxel where its points lie on one (or, with `ground`, on the ground: VoxelPointMap::plane), else to the point.
 PointAlignment align_points(const VoxelPointMap& map, const std::vector<Vec3>& points,
-                            const RigidTransform& initial_pose, double sigma, const PointAlignmentOptions& options);
+                            const RigidTransform& initial_pose, double sigma, const PointAlignmentOptions& options,
+                            bool ground);
 
 // The kernel scale of align_points and point_cost: how far a point may lie off the map and still pull the pose.
 double alignment_kernel_scale(const VoxelPointMap& map, double sigma);
 
 // The mean Geman-McClure cost (each point's in [0, 1), 1 without a map point within 3 sigma) of `points` at `pose`,
 // with the residuals of align_points: what the points say of a motion found elsewhere.
-double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma);
+double point_cost(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& pose, double sigma,
+                  bool ground);
 
 // How much better `points` fit the map at `better` than at `worse` (point_cost's per-point terms): the mean of the
 // paired differences in standard errors (a z; 0 for fewer than two points).
 double point_cost_advantage(const VoxelPointMap& map, const std::vector<Vec3>& points, const RigidTransform& better,
-                            const RigidTransform& worse, double sigma);
+                            const RigidTransform& worse, double sigma, bool ground);
 
 // How far off the motion model has been (KISS-ICP's adaptive threshold): the rms over the frames that moved of the
 // distance a point at `range` metres moves between the predicted and the registered motion.

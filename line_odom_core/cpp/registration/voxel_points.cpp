@@ -115,7 +115,7 @@ bool VoxelPointMap::nearest(const Vec3& q, double max_distance, Vec3* nearest_po
   return found;
 }
 
-bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal) const {
+bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal, bool ground) const {
   // As SurfaceMap's voxel planes: at least kMinPlanePoints points whose scatter's eigenvalues l0 <= l1 <= l2 spread
   // over two directions, (l1 - l0) / l2 >= kMinPlanarity. Else on the ground, a single point or points along one
   // direction (l1 < kMinPlanarity l2) within 30 degrees of it: a ring's arc.
@@ -125,7 +125,7 @@ bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal) const {
   const Voxel& v = voxels_[index];
   if (v.plane_count != v.count) {
     v.plane_count = v.count;
-    v.planar = false;
+    v.planar = v.ground_arc = false;
     if (v.count >= kMinPlanePoints || v.on_ground) {
       Vec3 m = Vec3::Zero();
       for (int k = 0; k < v.count; ++k) m += points_[v.first + k];
@@ -143,15 +143,17 @@ bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal) const {
       const bool along_ground =
           !(l(2) > 0.0) ||
           (l(1) < kMinPlanarity * l(2) && std::abs(es.eigenvectors().col(2).dot(v.ground_normal)) < kGroundArcSine);
-      if (!v.planar && v.on_ground && along_ground) {
-        v.planar = true;
-        v.normal = v.ground_normal;
-      }
+      v.ground_arc = !v.planar && v.on_ground && along_ground;
     }
   }
   *mean = v.mean;
-  *normal = v.normal;
-  return v.planar;
+  if (v.planar) {
+    *normal = v.normal;
+    return true;
+  }
+  const bool on_ground_plane = ground && v.ground_arc;
+  *normal = on_ground_plane ? v.ground_normal : v.normal;
+  return on_ground_plane;
 }
 
 std::vector<Vec3> voxel_downsample(const std::vector<Vec3>& points, double voxel) {

@@ -32,11 +32,11 @@ class VoxelPointMap {
   // `voxel` (nullable): the index of the voxel holding it.
   bool nearest(const Vec3& q, double max_distance, Vec3* nearest_point, int* voxel = nullptr) const;
   // The plane of a voxel's points (mean and unit normal), computed once per change of the voxel: false when they are
-  // too few or do not spread over a plane (a single ring's arc, a pole). Points on the ground (within a voxel of the
-  // ground plane of the scans that added them) that are one point or run along it (a ring's arc) are the ground's plane
-  // there: where along the ground a ring sits is where the sensor put it, not where the world is (matched point to
-  // point, a sparse scan's rings would hold it at the last scan's place).
-  bool plane(int voxel, Vec3* mean, Vec3* normal) const;
+  // too few or do not spread over a plane (a single ring's arc, a pole). With `ground`, points on the ground (within a
+  // voxel of the ground plane of the scans that added them) that are one point or run along it (a ring's arc) are the
+  // ground's plane there: where along the ground a ring sits is where the sensor put it, not where the world is
+  // (matched point to point, a sparse scan's rings would hold it at the last scan's place).
+  bool plane(int voxel, Vec3* mean, Vec3* normal, bool ground) const;
 
  private:
   struct Voxel {
@@ -46,7 +46,8 @@ class VoxelPointMap {
     bool on_ground = false;        // every point within a voxel of its scan's ground plane
     Vec3 ground_normal = Vec3::Zero();
     mutable int plane_count = -1;  // the count its plane was computed at
-    mutable bool planar = false;
+    mutable bool planar = false;      // its points spread over a plane
+    mutable bool ground_arc = false;  // ... or lie on the ground as one point or a ring's arc along it
     mutable Vec3 mean = Vec3::Zero(), normal = Vec3::Zero();
   };
   void rebuild_table();

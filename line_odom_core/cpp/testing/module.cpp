@@ -268,7 +268,8 @@ Pose point_map_alignment(const Points& map_points, std::optional<Eigen::Vector4d
   const line_odom::Plane plane = ground ? py_types::plane_at(ground->data()) : line_odom::Plane{};
   map.add(vec3s(map_points), line_odom::RigidTransform::identity(), 1e9, ground ? &plane : nullptr);
   const line_odom::PointAlignment aligned = line_odom::align_points(
-      map, vec3s(scan), line_odom::RigidTransform::from_matrix(initial_pose), sigma, line_odom::PointAlignmentOptions{});
+      map, vec3s(scan), line_odom::RigidTransform::from_matrix(initial_pose), sigma, line_odom::PointAlignmentOptions{},
+      true);
   return aligned.pose.matrix();
 }
 
