@@ -68,7 +68,6 @@ Odometry::FrameInputs Odometry::begin_frame(double stamp, int organized_step, co
   OdometryState& s = state_;
   const RegistrationOptions& reg = config_.registration;
   FrameInputs in;
-  in.stamp = stamp;
   in.dt = stamp - s.previous_stamp;
   in.organized_step = organized_step;
   in.guess = guess;

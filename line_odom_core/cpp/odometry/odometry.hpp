@@ -116,7 +116,7 @@ class Odometry {
  private:
   // One frame's circumstances: fixed before its features are fitted (begin_frame), its prediction added (predict).
   struct FrameInputs {
-    double stamp = 0.0, dt = 0.0;  // dt: since the previous frame
+    double dt = 0.0;  // since the previous frame
     int organized_step = 1;
     const RigidTransform* guess = nullptr;  // nullable, as register_points' arguments
     const Mat3* rotation_guess = nullptr;
