@@ -30,11 +30,15 @@ def motion_persistence(motions: npt.ArrayLike, window: int, registered: Sequence
                        ) -> npt.NDArray[np.float64]: ...  # (N, 6) factors after each motion (motion_persistence.hpp)
 def odometry_config_defaults() -> dict[str, bool | int | float | str]: ...  # OdometryConfig{}'s values, by name
 
-# The local point map's nearest-point lookup (registration/voxel_points.hpp) over points (N, 3) in cubes of `voxel`
-# metres: for each query (M, 3), the map point returned within max_distance (NaN rows where none) and its voxel's index
-# (-1 where none).
+# The local point map's nearest-point lookup (registration/voxel_points.hpp) over points (N, 3, world frame) in cubes of
+# `voxel` metres, added scan by scan (scan_of: each point's scan, in consecutive runs; sensor_positions (S, 3): where
+# each scan's sensor stood; none: one scan at the origin), a full cube's points from within `same_place` metres of
+# another scan's place giving way (negative: never): for each query (M, 3), the map point returned within max_distance
+# (NaN rows where none) and its voxel's index (-1 where none).
 def voxel_map_nearest(points: npt.ArrayLike, voxel: float, max_points_per_voxel: int, queries: npt.ArrayLike,
-                      max_distance: float) -> tuple[npt.NDArray[np.float64], list[int]]: ...
+                      max_distance: float, *, scan_of: Sequence[int] | None = None,
+                      sensor_positions: npt.ArrayLike | None = None,
+                      same_place: float = -1.0) -> tuple[npt.NDArray[np.float64], list[int]]: ...
 
 # The point map's alignment (point_alignment.hpp) of scan (N, 3) from initial_pose (4x4) to a map of map_points (M, 3)
 # in cubes of `voxel` metres, measured over the plane ground (a, b, c, d) or None, its kernel from sigma: the 4x4 pose

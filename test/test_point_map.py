@@ -36,6 +36,28 @@ def test_the_nearest_map_point_is_the_nearest_point(voxel, max_distance, exact_w
     assert (d_to_map < 1e-12).all()
 
 
+def test_a_full_cube_gives_way_only_to_points_from_a_place_sampled_before():
+    """A cube holding three points is filled by a sensor standing still (scans 0 and 1 at the origin), then a scan from
+    2 m away adds a point: the point scan 1 added from where scan 0 stood gives way, scan 0's stay. Without
+    same_place (the first points stay, as KISS-ICP's map) the new point is not taken; a sensor that moved between
+    every scan keeps its first points either way."""
+    points = np.array([[0.1, 0.1, 0.1], [0.2, 0.1, 0.1], [0.3, 0.1, 0.1], [0.9, 0.1, 0.1]])
+    scan_of = [0, 0, 1, 2]
+    queries = points.copy()
+    standing = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    given_way, _ = _testing.voxel_map_nearest(points, 1.0, 3, queries, 0.9, scan_of=scan_of,
+                                              sensor_positions=standing, same_place=0.1)
+    np.testing.assert_allclose(given_way[:, 0], [0.1, 0.2, 0.2, 0.9])
+    first, _ = _testing.voxel_map_nearest(points, 1.0, 3, queries, 0.9, scan_of=scan_of, sensor_positions=standing)
+    np.testing.assert_allclose(first[:, 0], [0.1, 0.2, 0.3, 0.3])
+    moving = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    kept, _ = _testing.voxel_map_nearest(points, 1.0, 3, queries, 0.9, scan_of=scan_of, sensor_positions=moving,
+                                         same_place=0.1)
+    np.testing.assert_allclose(kept[:, 0], [0.1, 0.2, 0.3, 0.3])
+    with pytest.raises(ValueError, match="scan_of"):
+        _testing.voxel_map_nearest(points, 1.0, 3, queries, 0.9, scan_of=[0, 1])
+
+
 def test_an_empty_neighbourhood_finds_nothing():
     points = np.array([[0.0, 0.0, 0.0], [0.2, 0.1, 0.0]])
     nearest, voxels = _testing.voxel_map_nearest(points, 1.0, 20, np.array([[5.0, 5.0, 5.0], [0.1, 0.0, 0.0]]), 0.9)

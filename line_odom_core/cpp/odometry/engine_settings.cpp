@@ -303,6 +303,12 @@ SettingsTable<PointMapOptions> point_map_settings() {
       number("voxel", &PointMapOptions::voxel, "0 (off) or [0.01, 100]", "m",
              "the map's cubes (0: sensor.max_range / 100)"),
       number("max_points_per_voxel", &PointMapOptions::max_points_per_voxel, "[1, 1000]", "", "points a cube keeps"),
+      choice("keep", &PointMapOptions::keep, std::vector<std::string>{"viewpoints", "first"},
+             "which points of a full cube give way to new ones. viewpoints: those a scan added within "
+             "point_map.min_motion of where another scan in the cube stood, the oldest first: while the sensor stands "
+             "still its scans sample the cube again the same way, and a sparse scan's rings where it stood would fill "
+             "the map and pull each alignment back towards that place once it moves on; first: none, the first points "
+             "stay, as KISS-ICP"),
       choice("ground_planes", &PointMapOptions::ground_planes, {"never", "first_motion", "always"},
              "match a cube's points to the ground's plane where they lie within a cube of their scan's ground plane "
              "(its largest plane facing the sensor's z axis) and are one point or run along it, a ring's arc: where a "

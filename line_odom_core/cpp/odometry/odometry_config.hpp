@@ -74,6 +74,9 @@ struct PointMapOptions {
   bool enabled = true;
   double voxel = 0.0;              // m: the map's cubes; 0: sensor.max_range / 100 (KISS-ICP's resolution)
   int max_points_per_voxel = 20;
+  // Which points of a full cube give way to new ones: "viewpoints" (those from where another scan in it stood, within
+  // alignment.min_motion) or "first" (none: the first stay).
+  std::string keep = "viewpoints";
   // Points on the scan's ground plane matched to the ground's plane (VoxelPointMap::plane): "never", "first_motion"
   // (in the first motion's alignment: PointMapTracker) or "always".
   std::string ground_planes = "first_motion";

@@ -31,7 +31,7 @@ PointMapTracker::PointMapTracker(const PointMapOptions& options, double max_rang
       ground_first_motion_(options.ground_planes != "never"),
       max_range_(max_range),
       voxel_(options.voxel > 0.0 ? options.voxel : max_range / 100.0),
-      map_(voxel_, options.max_points_per_voxel),
+      map_(voxel_, options.max_points_per_voxel, options.keep == "viewpoints" ? options.alignment.min_motion : -1.0),
       model_error_(options.alignment.initial_threshold, options.alignment.min_motion, max_range) {}
 
 namespace {

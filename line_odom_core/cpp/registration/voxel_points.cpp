@@ -12,6 +12,10 @@ void VoxelPointMap::clear() {
   table_ = VoxelTable{};
   voxels_.clear();
   points_.clear();
+  point_scans_.clear();
+  points_on_ground_.clear();
+  points_resampled_.clear();
+  scan_places_.clear();
 }
 
 void VoxelPointMap::rebuild_table() {
@@ -26,6 +30,16 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
                         const Plane* ground) {
   if (voxels_.empty()) table_.reset(points.size());
   const Plane ground_here = ground != nullptr ? ground->normalized().moved(pose) : Plane{};
+  const int scan = static_cast<int>(scan_places_.size());
+  scan_places_.push_back(pose.t);
+  // Whether a scan in voxel v other than this one stood within same_place_ of this one (the point in slot `skip` aside).
+  auto sampled_from_here = [&](const Voxel& v, int skip) {
+    for (int k = 0; k < v.count; ++k) {
+      const int other = point_scans_[v.first + k];
+      if (k != skip && other != scan && (scan_places_[other] - pose.t).norm() < same_place_) return true;
+    }
+    return false;
+  };
   for (const Vec3& p : points) {
     const Vec3 q = pose.apply(p);
     if (!q.allFinite()) continue;
@@ -34,14 +48,39 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
     const std::int32_t slot = table_.insert(voxel_key(x, y, z), &inserted);
     if (inserted) {
       voxels_.push_back(Voxel{x, y, z, static_cast<int>(points_.size()), 0});
-      points_.resize(points_.size() + per_voxel_);
+      const std::size_t slots = points_.size() + per_voxel_;
+      points_.resize(slots);
+      point_scans_.resize(slots);
+      points_on_ground_.resize(slots);
+      points_resampled_.resize(slots);
     }
     Voxel& v = voxels_[slot];
-    if (v.count == per_voxel_) continue;
+    // The slot the point takes: the next free one, else the oldest point from a place sampled before.
+    int at = v.count;
+    if (v.count == per_voxel_) {
+      if (v.resampled == 0) continue;
+      for (int k = 0, oldest = scan + 1; k < v.count; ++k)
+        if (points_resampled_[v.first + k] && point_scans_[v.first + k] < oldest)
+          oldest = point_scans_[v.first + k], at = k;
+      --v.resampled;
+    } else {
+      ++v.count;
+    }
     const bool on_ground = ground != nullptr && std::abs(ground_here.signed_distance(q)) <= voxel_;
-    v.on_ground = (v.count == 0 || v.on_ground) && on_ground;
     if (on_ground) v.ground_normal = ground_here.n;
-    points_[v.first + v.count++] = q;  // (its plane is computed again at the new count)
+    const bool resampled = same_place_ >= 0.0 && sampled_from_here(v, at);
+    v.resampled += resampled;
+    ++v.changes;  // (its plane is computed again)
+    points_[v.first + at] = q;
+    point_scans_[v.first + at] = scan;
+    points_on_ground_[v.first + at] = on_ground;
+    points_resampled_[v.first + at] = resampled;
+    if (at == v.count - 1) {
+      v.on_ground = (at == 0 || v.on_ground) && on_ground;
+    } else {
+      v.on_ground = true;
+      for (int k = 0; k < v.count; ++k) v.on_ground = v.on_ground && points_on_ground_[v.first + k];
+    }
   }
   // Drop the voxels out of the sensor's reach once they are a quarter of the map (they are never near a scan's points;
   // dropping compacts the points and builds the table again).
@@ -56,13 +95,22 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
     if (kept != i) {
       Voxel moved = v;
       moved.first = static_cast<int>(kept) * per_voxel_;
-      std::copy(points_.begin() + v.first, points_.begin() + v.first + v.count, points_.begin() + moved.first);
+      auto move_slots = [&](auto& column) {
+        std::copy(column.begin() + v.first, column.begin() + v.first + v.count, column.begin() + moved.first);
+      };
+      move_slots(points_);
+      move_slots(point_scans_);
+      move_slots(points_on_ground_);
+      move_slots(points_resampled_);
       voxels_[kept] = moved;
     }
     ++kept;
   }
   voxels_.resize(kept);
   points_.resize(kept * per_voxel_);
+  point_scans_.resize(points_.size());
+  points_on_ground_.resize(points_.size());
+  points_resampled_.resize(points_.size());
   rebuild_table();
 }
 
@@ -123,8 +171,8 @@ bool VoxelPointMap::plane(int index, Vec3* mean, Vec3* normal, bool ground) cons
   constexpr double kMinPlanarity = 0.1;
   constexpr double kGroundArcSine = 0.5;
   const Voxel& v = voxels_[index];
-  if (v.plane_count != v.count) {
-    v.plane_count = v.count;
+  if (v.plane_count != v.changes) {
+    v.plane_count = v.changes;
     v.planar = v.ground_arc = false;
     if (v.count >= kMinPlanePoints || v.on_ground) {
       Vec3 m = Vec3::Zero();

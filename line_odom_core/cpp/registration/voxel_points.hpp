@@ -15,11 +15,15 @@ namespace line_odom {
 class VoxelPointMap {
  public:
   VoxelPointMap() = default;
-  VoxelPointMap(double voxel, int max_points_per_voxel) : voxel_(voxel), per_voxel_(max_points_per_voxel) {}
+  // `same_place` (m; negative: never): a full voxel's points that a scan added within this of where another scan in the
+  // voxel stood give way to new points, the oldest first; the other points stay (the first points, as KISS-ICP's map).
+  VoxelPointMap(double voxel, int max_points_per_voxel, double same_place = -1.0)
+      : voxel_(voxel), per_voxel_(max_points_per_voxel), same_place_(same_place) {}
 
-  // Adds `points` (sensor frame) at `pose` (T_world_sensor), up to the voxel's capacity, then drops the voxels
-  // farther than `max_distance` from the pose's position. `ground` (nullable, sensor frame): the ground plane the
-  // points were measured over (ground_plane of their scan's features).
+  // Adds `points` (sensor frame) at `pose` (T_world_sensor), up to the voxel's capacity (or in place of its points
+  // from a place sampled before, same_place), then drops the voxels farther than `max_distance` from the pose's
+  // position. `ground` (nullable, sensor frame): the ground plane the points were measured over (ground_plane of their
+  // scan's features).
   void add(const std::vector<Vec3>& points, const RigidTransform& pose, double max_distance,
            const Plane* ground = nullptr);
   void clear();
@@ -43,9 +47,11 @@ class VoxelPointMap {
     std::int64_t x, y, z;
     int first;  // into points_: per_voxel_ slots from here
     int count;
+    int changes = 0;               // points added
+    int resampled = 0;             // points from a place another scan in the voxel stood at (same_place)
     bool on_ground = false;        // every point within a voxel of its scan's ground plane
     Vec3 ground_normal = Vec3::Zero();
-    mutable int plane_count = -1;  // the count its plane was computed at
+    mutable int plane_count = -1;  // the changes its plane was computed at
     mutable bool planar = false;      // its points spread over a plane
     mutable bool ground_arc = false;  // ... or lie on the ground as one point or a ring's arc along it
     mutable Vec3 mean = Vec3::Zero(), normal = Vec3::Zero();
@@ -54,9 +60,15 @@ class VoxelPointMap {
 
   double voxel_ = 1.0;
   int per_voxel_ = 20;
+  double same_place_ = -1.0;
   VoxelTable table_;
   std::vector<Voxel> voxels_;
+  // Per point (per_voxel_ slots per voxel): where it is, the scan that added it (into scan_places_), whether it lay
+  // within a voxel of that scan's ground plane, and whether another scan in its voxel stood within same_place_.
   std::vector<Vec3> points_;
+  std::vector<int> point_scans_;
+  std::vector<unsigned char> points_on_ground_, points_resampled_;
+  std::vector<Vec3> scan_places_;  // the sensor's position of each add()
 };
 
 // The points one per cube of `voxel` metres (the first of each), in input order: a scan thinned evenly in space.

@@ -5,6 +5,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <limits>
@@ -183,14 +184,35 @@ std::vector<line_odom::Vec3> vec3s(const Points& points) {
   return out;
 }
 
-// VoxelPointMap (voxel_points.hpp) holding `points` at the identity: for each query, the map point nearest() returns
-// within max_distance (NaN where none) and the index of its voxel (-1).
+// VoxelPointMap (voxel_points.hpp) holding `points` (world frame), each scan of them (`scan_of`: consecutive runs, none:
+// one scan) added in turn by a sensor at sensor_positions[scan] (none: the origin), a full voxel's points from within
+// `same_place` of another scan's place giving way: for each query, the map point nearest() returns within max_distance
+// (NaN where none) and the index of its voxel (-1).
 py::tuple voxel_map_nearest(const Points& points, double voxel, int max_points_per_voxel, const Points& queries,
-                            double max_distance) {
+                            double max_distance, std::optional<std::vector<int>> scan_of,
+                            std::optional<Points> sensor_positions, double same_place) {
   if (!(voxel > 0.0)) throw py::value_error("voxel: expected > 0 (m)");
   if (max_points_per_voxel < 1) throw py::value_error("max_points_per_voxel: expected >= 1");
-  line_odom::VoxelPointMap map(voxel, max_points_per_voxel);
-  map.add(vec3s(points), line_odom::RigidTransform::identity(), 1e9);
+  const std::vector<int> scans = scan_of.value_or(std::vector<int>(static_cast<std::size_t>(points.rows()), 0));
+  if (scans.size() != static_cast<std::size_t>(points.rows()))
+    throw py::value_error("scan_of: expected one scan index per point");
+  const int scan_count = scans.empty() ? 0 : *std::max_element(scans.begin(), scans.end()) + 1;
+  if (!scans.empty() && *std::min_element(scans.begin(), scans.end()) < 0)
+    throw py::value_error("scan_of: expected indices >= 0");
+  if (sensor_positions && sensor_positions->rows() < scan_count)
+    throw py::value_error("sensor_positions: expected a row per scan of scan_of");
+  line_odom::VoxelPointMap map(voxel, max_points_per_voxel, same_place);
+  for (std::size_t begin = 0; begin < scans.size();) {
+    std::size_t end = begin;
+    while (end < scans.size() && scans[end] == scans[begin]) ++end;
+    line_odom::RigidTransform pose = line_odom::RigidTransform::identity();
+    if (sensor_positions) pose.t = sensor_positions->row(scans[begin]).transpose();
+    std::vector<line_odom::Vec3> scan;
+    for (std::size_t i = begin; i < end; ++i)
+      scan.push_back(points.row(static_cast<Eigen::Index>(i)).transpose() - pose.t);
+    map.add(scan, pose, 1e9);
+    begin = end;
+  }
   Points nearest(queries.rows(), 3);
   std::vector<int> voxels(static_cast<std::size_t>(queries.rows()), -1);
   for (Eigen::Index i = 0; i < queries.rows(); ++i) {
@@ -303,9 +325,12 @@ PYBIND11_MODULE(_testing, m) {
         "their stamp intervals dt (default 1 s; registered[i] False: a frame without a registration); the per-axis "
         "factors after each (N, 6).");
   m.def("voxel_map_nearest", &voxel_map_nearest, py::arg("points"), py::arg("voxel"), py::arg("max_points_per_voxel"),
-        py::arg("queries"), py::arg("max_distance"),
-        "The local point map's nearest-point lookup (voxel_points.hpp) over `points` (N, 3) in cubes of `voxel`: for each "
-        "query (M, 3), the map point returned within max_distance (NaN where none) and its voxel's index (-1).");
+        py::arg("queries"), py::arg("max_distance"), py::kw_only(), py::arg("scan_of") = py::none(),
+        py::arg("sensor_positions") = py::none(), py::arg("same_place") = -1.0,
+        "The local point map's nearest-point lookup (voxel_points.hpp) over `points` (N, 3, world frame) in cubes of "
+        "`voxel`, added scan by scan (scan_of: each point's scan, consecutive; sensor_positions: (S, 3), where each "
+        "scan's sensor stood), a full cube's points from within `same_place` of another scan's place giving way: for "
+        "each query (M, 3), the map point returned within max_distance (NaN where none) and its voxel's index (-1).");
   m.def("point_map_alignment", &point_map_alignment, py::arg("map_points"), py::arg("ground"), py::arg("voxel"),
         py::arg("scan"), py::arg("initial_pose"), py::arg("sigma"),
         "The point map's alignment (point_alignment.hpp) of `scan` (N, 3) from initial_pose (4x4) to a map of "
