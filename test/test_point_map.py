@@ -58,6 +58,25 @@ def test_a_full_cube_gives_way_only_to_points_from_a_place_sampled_before():
         _testing.voxel_map_nearest(points, 1.0, 3, queries, 0.9, scan_of=[0, 1])
 
 
+@pytest.mark.parametrize("standing", [1026, 1500])
+def test_a_sensor_standing_for_many_scans_keeps_the_first_point_and_the_last_ones(standing):
+    """Scans from one place each add a point to a cube holding three, past the scans the map numbers before it
+    renumbers those it still holds (right after it: 1026; and later): the first standing point stays, the others gave
+    way in turn, the last two are held. Then a scan from 2 m away adds one in place of the older of those two."""
+    points = np.c_[0.1 + 0.0005 * np.arange(standing), np.full(standing, 0.1), np.full(standing, 0.1)]
+    queries = points[[0, standing - 3, standing - 2, standing - 1]]
+    held = np.array([True, False, True, True])
+
+    def nearest(points, positions):
+        found, _ = _testing.voxel_map_nearest(points, 1.0, 3, queries, 1e-4, scan_of=list(range(len(points))),
+                                              sensor_positions=positions, same_place=0.1)
+        return ~np.isnan(found[:, 0])
+
+    np.testing.assert_array_equal(nearest(points, np.zeros((standing, 3))), held)
+    moved = np.vstack([np.zeros((standing, 3)), [[2.0, 0.0, 0.0]]])
+    np.testing.assert_array_equal(nearest(np.vstack([points, [[0.95, 0.1, 0.1]]]), moved), [True, False, False, True])
+
+
 def test_an_empty_neighbourhood_finds_nothing():
     points = np.array([[0.0, 0.0, 0.0], [0.2, 0.1, 0.0]])
     nearest, voxels = _testing.voxel_map_nearest(points, 1.0, 20, np.array([[5.0, 5.0, 5.0], [0.1, 0.0, 0.0]]), 0.9)

@@ -87,8 +87,7 @@ def test_after_a_stop_the_map_does_not_pull_the_scans_back_to_the_stopping_place
     where the sensor stood), and once the car has backed up a few decimetres each alignment leans back towards that
     place: frames moving -0.06..-0.09 m a scan align at +0.02..+0.04 m, and held there the drive runs about 0.06 m a
     frame off. The points scans added from a place sampled before give way to the scans after the stop."""
-    forward = stop_and_go()
-    data = KittiSequence(forward.root, forward.scan_paths[::-1], forward.times, forward.Tr, forward.poses[::-1])
+    data = stop_and_go().played_backwards()
     _, stats, t, _ = run(data, "1/36", {"point_map.keep": keep})
     flagged = np.array([s["degenerate"] for s in stats[1:]])
     assert not (gross(t, data) & ~flagged).any(), np.round(t, 3)

@@ -18,6 +18,20 @@ void VoxelPointMap::clear() {
   scan_places_.clear();
 }
 
+void VoxelPointMap::renumber_scans() {
+  std::vector<int> kept;
+  for (const Voxel& v : voxels_)
+    kept.insert(kept.end(), point_scans_.begin() + v.first, point_scans_.begin() + v.first + v.count);
+  std::sort(kept.begin(), kept.end());
+  kept.erase(std::unique(kept.begin(), kept.end()), kept.end());
+  for (const Voxel& v : voxels_)
+    for (int k = v.first; k < v.first + v.count; ++k)
+      point_scans_[k] = static_cast<int>(std::lower_bound(kept.begin(), kept.end(), point_scans_[k]) - kept.begin());
+  std::vector<Vec3> places(kept.size());
+  for (std::size_t i = 0; i < kept.size(); ++i) places[i] = scan_places_[kept[i]];
+  scan_places_ = std::move(places);
+}
+
 void VoxelPointMap::rebuild_table() {
   table_.reset(voxels_.size());
   for (std::size_t i = 0; i < voxels_.size(); ++i) {
@@ -30,6 +44,7 @@ void VoxelPointMap::add(const std::vector<Vec3>& points, const RigidTransform& p
                         const Plane* ground) {
   if (voxels_.empty()) table_.reset(points.size());
   const Plane ground_here = ground != nullptr ? ground->normalized().moved(pose) : Plane{};
+  if (scan_places_.size() > std::max<std::size_t>(kMinRenumbered, voxels_.size())) renumber_scans();
   const int scan = static_cast<int>(scan_places_.size());
   scan_places_.push_back(pose.t);
   // Whether a scan in voxel v other than this one stood within same_place_ of this one (the point in slot `skip` aside).

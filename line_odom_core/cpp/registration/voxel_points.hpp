@@ -57,6 +57,10 @@ class VoxelPointMap {
     mutable Vec3 mean = Vec3::Zero(), normal = Vec3::Zero();
   };
   void rebuild_table();
+  // The scans' numbers made consecutive over those whose points the map still holds (in their order): the places of
+  // scans it no longer holds are forgotten, so a sensor standing for hours does not grow the map.
+  void renumber_scans();
+  static constexpr std::size_t kMinRenumbered = 1024;  // scans remembered before the first renumbering
 
   double voxel_ = 1.0;
   int per_voxel_ = 20;
@@ -68,7 +72,7 @@ class VoxelPointMap {
   std::vector<Vec3> points_;
   std::vector<int> point_scans_;
   std::vector<unsigned char> points_on_ground_, points_resampled_;
-  std::vector<Vec3> scan_places_;  // the sensor's position of each add()
+  std::vector<Vec3> scan_places_;  // the sensor's position of each add() (renumber_scans)
 };
 
 // The points one per cube of `voxel` metres (the first of each), in input order: a scan thinned evenly in space.
