@@ -354,6 +354,14 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   // Where the lines leave a direction open that the points put elsewhere, their valley (a turn traded for a shift) is
   // held there too: held on that axis alone, the lines slide along the rest of it.
   const Mat6 valley = unpinned != 0 ? valley_projector(outcome->stats.covariance, obs.lever) : Mat6::Zero();
+  // A translation so held shows the lines at another point of that valley than the scene's motion, beyond the
+  // covariance's local reach: refitted with the shift held, their turn moves along it, away from the points'. So the
+  // rotations the points resolve are held at their alignment too.
+  const int turns_held =
+      judged && (unpinned & kTranslationAxes) != 0
+          ? kRotationAxes & resolved_axes(points_covariance,
+                                          observability_push(outcome->best, lines_.config().validation), obs.lever)
+          : 0;
   if (registered_in_full(*outcome) && open != 0) {
     // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion
     // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
@@ -394,9 +402,10 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       out.reference = by_points;
       out.held_at_points = placed_by_points;
     } else if ((aligned || frame.guessed) &&
-               lines_.hold_directions(corr, LinePairTable(corr), reference, open & ~leaning,
+               lines_.hold_directions(corr, LinePairTable(corr), reference, (open & ~leaning) | turns_held,
                                       unpinned != 0 ? &valley : nullptr, outcome)) {
-      outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess");
+      outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess") +
+                         (turns_held != 0 ? ", with " + axes_text(turns_held) : "");
       out.reference = reference;
       out.held_at_points = aligned;
     } else if (judged) {
