@@ -79,7 +79,7 @@ struct PointMapOptions {
   std::string keep = "viewpoints";
   // Points on the scan's ground plane matched to the ground's plane (VoxelPointMap::plane): "never", "first_motion"
   // (in the first motion's alignment: PointMapTracker) or "always".
-  std::string ground_planes = "first_motion";
+  std::string ground_planes = "always";
   PointAlignmentOptions alignment;
 };
 
