@@ -231,8 +231,8 @@ def test_the_first_motion_matches_the_ground_to_its_plane(level):
     """KITTI 02 (a highway, 1.5 m a scan): the first motion is the alignment to the one-scan map, whose scan the same
     lasers sampled from where standing still puts the new one. Matched point to point, the rings on the ground hold it
     near that scan's place (measured 0.14 / 0.16 m off at 1/36 / 1/64); with the ground's cubes matched to its plane
-    (point_map.ground_planes first_motion and always, the default) 0.07 / 0.06 m. Bounds: under 0.1 m by default, over it point to
-    point (so the test fails when the default stops taking effect)."""
+    (point_map.ground_planes first_motion and always, the default) 0.07 / 0.06 m. Bounds: under 0.1 m by default,
+    over it point to point (so the test fails when the default stops taking effect)."""
     data = kitti_sequence("02", 2)
     _, _, t, _ = run(data, level)
     _, _, t_point_to_point, _ = run(data, level, POINT_TO_POINT_FIRST_MOTION)
