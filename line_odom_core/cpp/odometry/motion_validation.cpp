@@ -354,14 +354,15 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   // Where the lines leave a direction open that the points put elsewhere, their valley (a turn traded for a shift) is
   // held there too: held on that axis alone, the lines slide along the rest of it.
   const Mat6 valley = unpinned != 0 ? valley_projector(outcome->stats.covariance, obs.lever) : Mat6::Zero();
+  // The axes the points' alignment resolves at the lines' motion's tolerance.
+  const int points_resolve =
+      aligned ? resolved_axes(points_covariance, observability_push(outcome->best, lines_.config().validation),
+                              obs.lever)
+              : 0;
   // A translation so held shows the lines at another point of that valley than the scene's motion, beyond the
   // covariance's local reach: refitted with the shift held, their turn moves along it, away from the points'. So the
   // rotations the points resolve are held at their alignment too.
-  const int turns_held =
-      judged && (unpinned & kTranslationAxes) != 0
-          ? kRotationAxes & resolved_axes(points_covariance,
-                                          observability_push(outcome->best, lines_.config().validation), obs.lever)
-          : 0;
+  const int turns_held = judged && (unpinned & kTranslationAxes) != 0 ? kRotationAxes & points_resolve : 0;
   if (registered_in_full(*outcome) && open != 0) {
     // Held where nothing confirms the lines: at the points' motion, or at a guess; with neither, the lines' motion
     // stands, flagged. Where no direction is confirmed, the points' motion is the frame's.
@@ -388,9 +389,7 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       // moves with the turn along that valley, as far as the lines' own covariance puts it with the turn.
       outcome->failure = why;
       const double tolerance = observability_push(outcome->best, lines_.config().validation);
-      const int turns = aligned && frame.first_motion
-                            ? open & kRotationAxes & resolved_axes(points_covariance, tolerance, obs.lever)
-                            : 0;
+      const int turns = frame.first_motion ? open & kRotationAxes & points_resolve : 0;
       if (turns != 0) {
         const Vec3 side = side_of_travel(outcome->best.t, ground_up(*frame.current), tolerance);
         outcome->best = turned_along_valley(outcome->best, by_points, turns, outcome->stats.covariance, side);
