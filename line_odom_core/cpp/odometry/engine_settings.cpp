@@ -30,7 +30,8 @@ SettingsTable<SensorOptions> sensor_settings() {
              "away further apart than this, so both scans of a registration are corrected alike"),
       number("deskew_trend", &SensorOptions::deskew_trend, "0 (off) or [3, 20]", "frames",
              "a sweep is corrected at the pair's velocity plus how much faster it moves than the previous sweep: the "
-             "slope of the last n frames' registered velocities (0: off, both scans of a pair at one velocity)"),
+             "slope of the last n frames' velocities registered in full (a flagged frame starts it afresh; 0: off, both "
+             "scans of a pair at one velocity)"),
       number("deskew_iterations", &SensorOptions::deskew_iterations, "[0, 10]", "",
              "once registered, a sweep whose registered velocity moves a point 20 m away further than "
              "deskew_tolerance from where the prediction's did is deskewed again at it (its features and the "
