@@ -155,3 +155,23 @@ def test_latency_prints_the_16_laser_row():
     steady = float(row.split("|")[1].split()[10])
     registered = int(row.split("|")[1].split()[13].split("/")[1])
     assert frames == 9 and steady > 0.0 and 500 < registered < 3000  # 07 with 16 lasers: ~1,300 lines a scan
+
+
+def test_recordings_judges_thinned_registrations_against_the_full_resolution():
+    """bench/recordings.py on the 32-beam recording: the full-resolution row is its own reference (zero error), a
+    thinned one is judged against it, with the frames it flagged and the gross ones it did not; a recording of one
+    frame is said to hold nothing to register, and a bad level is refused naming --levels."""
+    recordings = SHARED_DATA / "sensor_recordings"
+    out = _run("bench/recordings.py", str(recordings / "vlp16_50frames.pcap"),
+               str(recordings / "OS-2-32-U0_v2.0.0_1024x10.pcap"), "--levels", "1", "4", "--frames", "8", "--no-kiss")
+    lines = out.splitlines()
+    assert lines[0].startswith("vlp16_50frames.pcap: 8 frames, preset vlp16")
+    full, thinned = (line.split("|")[1].split() for line in lines[1:3])
+    assert lines[1].split()[0] == "1/1" and lines[2].split()[0] == "1/16"
+    assert full[2] == "0.0000/0.0000" and full[4] == "0.000/0.000"
+    t_mean, t_max = (float(v) for v in thinned[2].split("/"))
+    assert 0.0 < t_mean <= t_max < 0.3 and thinned[9] == "grs" and int(thinned[10]) == 0
+    assert "1 frame, nothing to register" in lines[3]
+    done = subprocess.run([sys.executable, "bench/recordings.py", "--levels", "0"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2 and "--levels" in done.stderr
