@@ -29,14 +29,13 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 sys.path.append(str(Path(__file__).resolve().parent))
 
 import line_odom_core  # noqa: E402
-from accuracy import frame_errors, frame_motions, kiss_available, kiss_odometry, steady_ms  # noqa: E402
+from accuracy import flagged_and_gross, frame_errors, kiss_available, kiss_odometry, steady_ms  # noqa: E402
 from line_odom.datasets import SHARED_DATA  # noqa: E402
 from line_odom.readers import ReaderError, open_source  # noqa: E402
 from line_odom.replay_common import node_settings  # noqa: E402
 
 RECORDINGS = SHARED_DATA / "sensor_recordings"
 SUFFIXES = (".pcap", ".osf", ".bag")
-GROSS_M, GROSS_SHARE = 0.3, 0.3  # bench/accuracy.py's gross frame: off by more than max(0.3 m, 30 % of its motion)
 
 
 def default_recordings() -> list[Path]:
@@ -80,9 +79,9 @@ def kiss(points: list[np.ndarray]) -> tuple[np.ndarray, list[float]]:
 
 def judged(poses: np.ndarray, stats: list[dict], reference: np.ndarray) -> dict:
     t, r = frame_errors(poses, reference)
+    flagged, gross = flagged_and_gross(stats, t, reference)
     good = np.array([s["registered"] and not s["degenerate"] for s in stats[1:]])
-    bound = np.maximum(GROSS_M, GROSS_SHARE * frame_motions(reference))
-    return {"t": t, "r": r, "flagged": int((~good).sum()), "gross": int(((t > bound) & good).sum()),
+    return {"t": t, "r": r, "flagged": flagged, "gross": gross,
             "r_good_max": float(r[good].max()) if good.any() else float("nan")}
 
 

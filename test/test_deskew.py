@@ -403,7 +403,7 @@ def test_a_sensor_standing_still_is_not_set_turning_by_the_trend_of_flagged_fram
         res = odom.register_points(fr.xyz, fr.stamp_ns * 1e-9, ring=fr.ring.astype(np.int32), time=fr.time)
         degenerate.check_finite(res)
         assert res.stats["deskewed"] or not turns
-        turns.append(np.degrees(np.arccos(np.clip((np.trace(res.delta[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
+        turns.append(degenerate.frame_error(res.delta, np.eye(4))[1])
         good.append(res.stats["registered"] and not res.stats["degenerate"])
     turns, good = np.array(turns[1:]), np.array(good[1:])
     assert turns.mean() < 0.3 and turns[good].max(initial=0.0) < 0.6, (turns.round(2), good)

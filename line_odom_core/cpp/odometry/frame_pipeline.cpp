@@ -266,13 +266,14 @@ void Odometry::advance(const FrameFeatures& scan, const Plane* ground, const Fra
   const RigidTransform previous_place = s.point_map.place_of(s.pose);
   s.pose = s.pose * result->delta;
   s.pose.R = Eigen::Quaterniond(s.pose.R).normalized().toRotationMatrix();  // orthonormal over long runs
-  s.last_inlier_weight = st.registered && !st.degenerate ? st.inlier_weight : 0.0;
+  const bool reported_good = st.registered && !st.degenerate;
+  s.last_inlier_weight = reported_good ? st.inlier_weight : 0.0;
   s.prediction.record(result->delta, fused.held_projector, st.registered, in.dt, in.first_motion, in.guessed,
                       in.rotation_guessed, reg.constant_velocity, validated.measured_velocity);
   st.unmeasured_directions = static_cast<int>(std::lround(s.prediction.unmeasured_projector().trace()));
   // The trend of the sweeps' velocity is taken from measured velocities only: a flagged frame's motion (a direction
   // held or left open) would bend the next sweeps by its error, and their registrations would bend back further.
-  if (st.registered && !st.degenerate) s.sweeps.record_motion(result->delta, in.dt);
+  if (reported_good) s.sweeps.record_motion(result->delta, in.dt);
   else s.sweeps.forget_trend();
   // The map holds scans where the scans measured them: at the frame's pose when the lines registered it in full or
   // it was held at the point map's alignment or took it (Validated::held_at_points); a frame partly held at the

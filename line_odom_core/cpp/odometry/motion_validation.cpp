@@ -355,10 +355,8 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   // held there too: held on that axis alone, the lines slide along the rest of it.
   const Mat6 valley = unpinned != 0 ? valley_projector(outcome->stats.covariance, obs.lever) : Mat6::Zero();
   // The axes the points' alignment resolves at the lines' motion's tolerance.
-  const int points_resolve =
-      aligned ? resolved_axes(points_covariance, observability_push(outcome->best, lines_.config().validation),
-                              obs.lever)
-              : 0;
+  const double tolerance = observability_push(outcome->best, lines_.config().validation);
+  const int points_resolve = aligned ? resolved_axes(points_covariance, tolerance, obs.lever) : 0;
   // A translation so held shows the lines at another point of that valley than the scene's motion, beyond the
   // covariance's local reach: refitted with the shift held, their turn moves along it, away from the points'. So the
   // rotations the points resolve are held at their alignment too.
@@ -388,7 +386,6 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
       // walls); the points measured it. Not the translations, which lean to standing still; but the side of the travel
       // moves with the turn along that valley, as far as the lines' own covariance puts it with the turn.
       outcome->failure = why;
-      const double tolerance = observability_push(outcome->best, lines_.config().validation);
       const int turns = frame.first_motion ? open & kRotationAxes & points_resolve : 0;
       if (turns != 0) {
         const Vec3 side = side_of_travel(outcome->best.t, ground_up(*frame.current), tolerance);
