@@ -33,6 +33,9 @@ constexpr double kHeldRotationCosine = 0.5;  // held directions within 60 deg of
 constexpr double kSupportDrop = 1.0 / 3.0;  // a frame with less of the last one's inlier weight is checked for a turn
                                             // (KITTI, TUM, the simulated street: > 0.48 of it; a 20 deg wrong heading
                                             // on the simulated street: 0.14-0.29)
+constexpr double kOwnReach = 0.25;  // a peak moving the lines within this share of the candidate distance of the
+                                    // estimate is the registration's own: its candidates reach it (and a scan's flat
+                                    // support peaks anywhere there)
 constexpr std::size_t kScanLines = 600;  // lines of the scan scored per shift (every k-th): the same peaks on KITTI
                                          // as all 3000, at a fifth of the cost (docs/RESULTS.md)
 
@@ -146,8 +149,7 @@ bool MotionSearch::search_unmeasured(const ScanFeatures& prev, const ScanFeature
   CandidateIndex scanned_index(prev_scanned);
   const bool peaked = translation_peak(scanned_index, cur_scanned, estimate, scans, &peak);
   st->ms.candidates += scan.ms();
-  // (a shift within the scan's own candidate reach is the registration's: a corridor's flat support peaks anywhere)
-  if (!peaked || (peak.t - estimate.t).norm() < 0.25 * config().candidates.max_distance) return false;
+  if (!peaked || (peak.t - estimate.t).norm() < kOwnReach * config().candidates.max_distance) return false;
   return adopt_if_better(prev, cur, prediction, estimate, peak, frame, outcome, st);
 }
 
@@ -190,7 +192,12 @@ bool MotionSearch::search_turn(const ScanFeatures& prev, const ScanFeatures& cur
                                                 {{estimate, level ? ground.n : Vec3::UnitZ()}}, turn_motion, step,
                                                 steps, tolerance, &peak);
   st->ms.candidates += scan.ms();
-  return peaked && adopt_if_better(prev, cur, prediction, estimate, peak, frame, outcome, st);
+  if (!peaked) return false;
+  // A registration's candidates reached a peak that moves the lines at the median range less than kOwnReach of their
+  // distance: its held turn is not a wrong basin's.
+  const double moved = Eigen::AngleAxisd(estimate.R.transpose() * peak.R).angle() * lever;
+  if (registered && moved < kOwnReach * config().candidates.max_distance) return false;
+  return adopt_if_better(prev, cur, prediction, estimate, peak, frame, outcome, st);
 }
 
 // No velocity yet: a registration on the scans downsampled by registration.coarse_downsample finds the first motion
