@@ -384,19 +384,27 @@ def test_the_processor_gives_the_gyro_over_each_sweep(turning_sweeps, stamped_at
     assert results[False][0] > 0.5, results[False][0]
 
 
-def test_a_sensor_standing_still_is_not_set_turning_by_the_trend_of_flagged_frames():
-    """A real recording: a 32-beam Velodyne standing in a room (its registration at full resolution moves under 0.05
-    deg a frame), at 1/16 with its point times, as replay reads it. Most frames there are flagged (a direction held).
-    The trend of the sweeps' velocity (sensor.deskew_trend) is taken from velocities registered in full only: with the
-    flagged frames' motions in it, the roll and pitch rates it added to each sweep bent the next registration the
-    other way, further each time (up to 5 deg a frame, 1.0 deg on average, frames reported as good 2.6 deg off)."""
+def standing_recording(downsample):
+    """The frames of the real 32-beam recording of a sensor standing in a room, as replay reads them, and the
+    configuration replay would use at `downsample`."""
     from line_odom.datasets import SHARED_DATA
     from line_odom.readers import open_source
     from line_odom.replay_common import node_settings
 
     with open_source(SHARED_DATA / "sensor_recordings" / "vlp16_50frames.pcap") as source:
         frames = list(source.frames())
-        config, _ = node_settings(source.kind, source.sensor.preset, {**source.sensor.overrides, "downsample": 4})
+        config, _ = node_settings(source.kind, source.sensor.preset,
+                                  {**source.sensor.overrides, "downsample": downsample})
+    return frames, config
+
+
+def test_a_sensor_standing_still_is_not_set_turning_by_the_trend_of_flagged_frames():
+    """A real recording: a 32-beam Velodyne standing in a room (its registration at full resolution moves under 0.05
+    deg a frame), at 1/16 with its point times, as replay reads it. Most frames there are flagged (a direction held).
+    The trend of the sweeps' velocity (sensor.deskew_trend) is taken from velocities registered in full only: with the
+    flagged frames' motions in it, the roll and pitch rates it added to each sweep bent the next registration the
+    other way, further each time (up to 5 deg a frame, 1.0 deg on average, frames reported as good 2.6 deg off)."""
+    frames, config = standing_recording(downsample=4)
     odom = line_odom_core.Odometry(config)
     turns, good = [], []
     for fr in frames:
@@ -417,15 +425,9 @@ def test_a_sensor_standing_still_reports_each_frame_within_its_covariance(downsa
     reported as good roll about half a degree a frame (a room's lines 1-4 m away move less than the inlier threshold
     under such a turn): their covariance says as much, so a filter downstream weighs them at that. A covariance that
     claimed the lines' least-squares precision would put those frames tens of sigmas out."""
-    from line_odom.datasets import SHARED_DATA
     from line_odom.metrics import motion_errors, nees
-    from line_odom.readers import open_source
-    from line_odom.replay_common import node_settings
 
-    with open_source(SHARED_DATA / "sensor_recordings" / "vlp16_50frames.pcap") as source:
-        frames = list(source.frames())
-        config, _ = node_settings(source.kind, source.sensor.preset,
-                                  {**source.sensor.overrides, "downsample": downsample})
+    frames, config = standing_recording(downsample)
     odom = line_odom_core.Odometry(config)
     results = [odom.register_points(fr.xyz, fr.stamp_ns * 1e-9, ring=fr.ring.astype(np.int32), time=fr.time)
                for fr in frames]
