@@ -119,152 +119,185 @@ bool LineRegistration::within_reach(const RigidTransform& prediction, const Rigi
          rotation_angle(deviation.R) <= config_->registration.max_rotation_deg * kPi / 180.0;
 }
 
-PassOutcome LineRegistration::register_features(const ScanFeatures& prev, const ScanFeatures& cur,
-                                                const RigidTransform& prediction, const RigidTransform& start,
-                                                bool limit_pairs, const RegistrationFrame& frame,
-                                                FrameStats* st) const {
-  const RegistrationOptions& reg = config_->registration;
-  Stopwatch stage;
-  RigidTransform best = start;
-  MotionStats best_stats;
-  bool have = false;
-  CandidateOptions copt = config_->candidates;
-  if (!limit_pairs) copt.max_pairs_per_line = reg.first_motion_pairs_per_line;
+// The state the passes of one registration carry from pass to pass: the last pass's candidates, the estimate kept so
+// far and the refined guess of the last pass.
+struct LineRegistration::Passes {
+  CandidateOptions copt;
   Correspondences corr;
   LinePairTable table;  // corr's line pairs, for the pass and the checks after the last one
   CandidateStats cstats;
+  RigidTransform best;
+  MotionStats best_stats;
+  bool have = false;
   std::string failure;
-  const RefineOptions ropt = refine_options();
-  std::unique_ptr<CandidateIndex> prev_index;  // frame a never moves: indexed once for all passes
   RefineResult last_refined;  // the refined guess of the last pass, when it converged
   bool last_refine_converged = false;
   bool have_rival = false;
   RigidTransform rival;
-  for (int pass = 0; pass < reg.passes; ++pass) {
-    stage = Stopwatch();
-    if (!prev_index) prev_index = std::make_unique<CandidateIndex>(prev);
-    build_candidates(*prev_index, cur, best, copt, &corr, &cstats, pool_);
-    st->ms.candidates += stage.ms();
-    st->candidates = cstats.line_pairs;
-    st->plane_candidates = cstats.plane_pairs;
+};
 
-    stage = Stopwatch();
-    table = LinePairTable(corr);
-    MotionOptions mopt = config_->ransac;
-    mopt.seed = mix_seed(config_->seed, frame.index, static_cast<std::uint64_t>(pass));
-    // The guess itself, refined on this pass's candidates, competes with the RANSAC samples: it is scored first
-    // and whichever has the larger weighted inlier count on the same candidates is kept (paper §6.3).
-    // An ill-conditioned refined guess still competes: a sample must out-support it to win, or the pass fails.
-    RefineResult refined;
-    const bool refine_converged =
-        refine_motion(corr, table, best, ropt, &refined) && within_reach(prediction, refined.T);
-    const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
-    last_refined = refined;
-    last_refine_converged = refine_converged;
-    RigidTransform estimate;
-    MotionStats ms;
-    // Without a motion guess (the first motion, searched from standing still) the refined guess may sit on a
-    // wrong shift that most pairs support: it must not cut the sampling short, so it only competes afterwards.
-    const bool guessed = limit_pairs || have;
-    bool ok = estimate_motion(corr, best, mopt, &estimate, &ms, refine_converged && guessed ? &refined.T : nullptr) &&
-              within_reach(prediction, estimate) && ms.inliers >= reg.min_inliers;
-    st->iterations += ms.iterations;
-    const double thr = config_->ransac.inlier_threshold;
-    int sample_pairs = 0, guess_pairs = 0;
-    double score_ransac = ok ? score_motion(table, estimate, thr, ropt.min_line_sine, &sample_pairs) : -1.0;
-    const double score_guess = refine_converged ? score_motion(table, refined.T, thr, ropt.min_line_sine, &guess_pairs)
-                                                : -1.0;
-    if (ok && refine_converged && guessed && ms.best_solver >= 0 &&
-        sample_pairs < reg.min_sample_pair_share * guess_pairs) {
-      // A sample that out-weighs the refined guess on a few heavily weighted (small) normal clusters while losing
-      // the pairs of the others is a wrong motion, not a correction: a right one keeps those pairs too.
-      ok = false;
-      score_ransac = -1.0;
-    }
-    const double score_prior = have ? score_motion(table, best, thr, ropt.min_line_sine) : -1.0;
-    const double score_refined = refined_ok ? score_guess : -1.0;
-    if (!guessed && ok && refined_ok) {
-      const bool sample_won = score_ransac > score_refined;
-      rival = sample_won ? refined.T : estimate;
-      const RigidTransform difference = rival.inverse() * (sample_won ? estimate : refined.T);
-      have_rival = difference.t.norm() > thr || rotation_angle(difference.R) > kRivalRotation;
-    }
-    st->ms.ransac += stage.ms();
-
-    copt.max_distance *= reg.pass_distance_scale;
-    copt.plane_max_distance *= reg.pass_distance_scale;
-    copt.max_pairs_per_line = config_->candidates.max_pairs_per_line;
-    if (!ok && !refined_ok) {
-      if (refine_converged && refined.degenerate && refined.line_inliers >= reg.min_inliers) {
-        char condition[64];
-        std::snprintf(condition, sizeof condition, "%.1e < ransac.degeneracy_threshold %.1e", refined.condition,
-                      ropt.degeneracy_threshold);
-        failure = "ill-conditioned constraints (" + std::to_string(refined.line_inliers) + " inliers, condition " +
-                  condition + ")";
-      } else {
-        failure = ms.inliers < reg.min_inliers && ms.inliers > 0
-                      ? "too few inliers (" + std::to_string(ms.inliers) + " < " + std::to_string(reg.min_inliers) + ")"
-                      : "no model with enough support (" + std::to_string(cstats.line_pairs) + " candidates)";
-      }
-      continue;
-    }
-    // Ties go to the guess (the constant-velocity prediction carries the weakly observed directions).
-    const double margin = 1.0 + reg.guess_preference;
-    if (score_ransac > margin * score_refined && score_ransac > margin * score_prior) {
-      best = estimate;
-      best_stats = ms;
-    } else if (score_refined > score_prior) {
-      best = refined.T;
-      copy_refinement_stats(refined, &best_stats);
-      best_stats.covariance = refined.covariance;
-      if (!have) best_stats.best_solver = -2;
-    } else {
-      continue;
-    }
-    have = true;
-    ++st->passes;
-    failure.clear();
-  }
-
-  auto too_few_meet = [&](const RigidTransform& T, int* inliers) {
-    return too_few_pairs_meet(corr, table, T, inliers);
-  };
-  auto unobserved_axes = [&](const RigidTransform& T) { return unobserved_axes_at(table, T); };
-  int inliers = 0;
-  int axes = 0;
-  if (have && !best_stats.degenerate) {
-    if (too_few_meet(best, &inliers)) {
-      best_stats.degenerate = true;
-      failure = "too few candidate pairs meet (" + std::to_string(inliers) + " of " +
-                std::to_string(corr.lines_a.size()) + " < registration.min_inlier_ratio)";
-    } else if ((axes = unobserved_axes(best)) != 0) {
-      best_stats.degenerate = true;
-      failure = "unobservable motion (a push along one axis keeps the inliers)";
-    }
-  }
-
+PassOutcome LineRegistration::register_features(const ScanFeatures& prev, const ScanFeatures& cur,
+                                                const RigidTransform& prediction, const RigidTransform& start,
+                                                bool limit_pairs, const RegistrationFrame& frame,
+                                                FrameStats* st) const {
+  Passes passes;
+  passes.best = start;
+  passes.copt = config_->candidates;
+  if (!limit_pairs) passes.copt.max_pairs_per_line = config_->registration.first_motion_pairs_per_line;
+  CandidateIndex prev_index(prev);  // frame a never moves: indexed once for all passes
+  for (int pass = 0; pass < config_->registration.passes; ++pass)
+    run_pass(pass, prev_index, cur, prediction, limit_pairs, frame, &passes, st);
+  const int axes = unobserved_after_passes(&passes);
   PassOutcome out;
-  // What the pairs do observe of a degenerate motion is kept, the rest follows the motion model (refine.hpp:
-  // refine_motion_partial): the unobserved axes of an estimate, or the weak directions of an ill-conditioned
-  // refined guess. The result must pass the same checks along the directions it does not hold.
+  hold_unobserved(prediction, frame, axes, &passes, &out);
+  out.best = passes.best;
+  out.stats = passes.best_stats;
+  out.have = passes.have;
+  out.failure = passes.failure;
+  out.have_rival = passes.have_rival;
+  out.rival = passes.rival;
+  out.candidates = std::make_shared<const Correspondences>(std::move(passes.corr));
+  return out;
+}
+
+// One pass (paper §6.3): the candidates under the estimate so far, RANSAC on them, and the estimate kept when it is
+// better supported than the last one; the candidate distance narrowed for the next.
+void LineRegistration::run_pass(int pass, CandidateIndex& prev_index, const ScanFeatures& cur,
+                                const RigidTransform& prediction, bool limit_pairs, const RegistrationFrame& frame,
+                                Passes* s, FrameStats* st) const {
+  const RegistrationOptions& reg = config_->registration;
+  const RefineOptions ropt = refine_options();
+  Stopwatch stage;
+  build_candidates(prev_index, cur, s->best, s->copt, &s->corr, &s->cstats, pool_);
+  st->ms.candidates += stage.ms();
+  st->candidates = s->cstats.line_pairs;
+  st->plane_candidates = s->cstats.plane_pairs;
+
+  stage = Stopwatch();
+  s->table = LinePairTable(s->corr);
+  MotionOptions mopt = config_->ransac;
+  mopt.seed = mix_seed(config_->seed, frame.index, static_cast<std::uint64_t>(pass));
+  // The guess itself, refined on this pass's candidates, competes with the RANSAC samples: it is scored first
+  // and whichever has the larger weighted inlier count on the same candidates is kept (paper §6.3).
+  // An ill-conditioned refined guess still competes: a sample must out-support it to win, or the pass fails.
+  RefineResult refined;
+  const bool refine_converged =
+      refine_motion(s->corr, s->table, s->best, ropt, &refined) && within_reach(prediction, refined.T);
+  const bool refined_ok = refine_converged && !refined.degenerate && refined.line_inliers >= reg.min_inliers;
+  s->last_refined = refined;
+  s->last_refine_converged = refine_converged;
+  RigidTransform estimate;
+  MotionStats ms;
+  // Without a motion guess (the first motion, searched from standing still) the refined guess may sit on a
+  // wrong shift that most pairs support: it must not cut the sampling short, so it only competes afterwards.
+  const bool guessed = limit_pairs || s->have;
+  const RigidTransform* competing = refine_converged && guessed ? &refined.T : nullptr;
+  bool ok = estimate_motion(s->corr, s->best, mopt, &estimate, &ms, competing) && within_reach(prediction, estimate) &&
+            ms.inliers >= reg.min_inliers;
+  st->iterations += ms.iterations;
+  const double thr = config_->ransac.inlier_threshold;
+  int sample_pairs = 0, guess_pairs = 0;
+  double score_ransac = ok ? score_motion(s->table, estimate, thr, ropt.min_line_sine, &sample_pairs) : -1.0;
+  const double score_guess =
+      refine_converged ? score_motion(s->table, refined.T, thr, ropt.min_line_sine, &guess_pairs) : -1.0;
+  if (ok && refine_converged && guessed && ms.best_solver >= 0 &&
+      sample_pairs < reg.min_sample_pair_share * guess_pairs) {
+    // A sample that out-weighs the refined guess on a few heavily weighted (small) normal clusters while losing
+    // the pairs of the others is a wrong motion, not a correction: a right one keeps those pairs too.
+    ok = false;
+    score_ransac = -1.0;
+  }
+  const double score_prior = s->have ? score_motion(s->table, s->best, thr, ropt.min_line_sine) : -1.0;
+  const double score_refined = refined_ok ? score_guess : -1.0;
+  if (!guessed && ok && refined_ok) {
+    const bool sample_won = score_ransac > score_refined;
+    s->rival = sample_won ? refined.T : estimate;
+    const RigidTransform difference = s->rival.inverse() * (sample_won ? estimate : refined.T);
+    s->have_rival = difference.t.norm() > thr || rotation_angle(difference.R) > kRivalRotation;
+  }
+  st->ms.ransac += stage.ms();
+
+  s->copt.max_distance *= reg.pass_distance_scale;
+  s->copt.plane_max_distance *= reg.pass_distance_scale;
+  s->copt.max_pairs_per_line = config_->candidates.max_pairs_per_line;
+  if (!ok && !refined_ok) {
+    if (refine_converged && refined.degenerate && refined.line_inliers >= reg.min_inliers) {
+      char condition[64];
+      std::snprintf(condition, sizeof condition, "%.1e < ransac.degeneracy_threshold %.1e", refined.condition,
+                    ropt.degeneracy_threshold);
+      s->failure = "ill-conditioned constraints (" + std::to_string(refined.line_inliers) + " inliers, condition " +
+                   condition + ")";
+    } else {
+      s->failure =
+          ms.inliers < reg.min_inliers && ms.inliers > 0
+              ? "too few inliers (" + std::to_string(ms.inliers) + " < " + std::to_string(reg.min_inliers) + ")"
+              : "no model with enough support (" + std::to_string(s->cstats.line_pairs) + " candidates)";
+    }
+    return;
+  }
+  // Ties go to the guess (the constant-velocity prediction carries the weakly observed directions).
+  const double margin = 1.0 + reg.guess_preference;
+  if (score_ransac > margin * score_refined && score_ransac > margin * score_prior) {
+    s->best = estimate;
+    s->best_stats = ms;
+  } else if (score_refined > score_prior) {
+    s->best = refined.T;
+    copy_refinement_stats(refined, &s->best_stats);
+    s->best_stats.covariance = refined.covariance;
+    if (!s->have) s->best_stats.best_solver = -2;
+  } else {
+    return;
+  }
+  s->have = true;
+  ++st->passes;
+  s->failure.clear();
+}
+
+// The estimate the passes kept, flagged degenerate when too few of the last pass's pairs meet under it or a push along
+// an axis keeps its inliers: those axes (bits of xi).
+int LineRegistration::unobserved_after_passes(Passes* s) const {
+  if (!s->have || s->best_stats.degenerate) return 0;
+  int inliers = 0;
+  if (too_few_pairs_meet(s->corr, s->table, s->best, &inliers)) {
+    s->best_stats.degenerate = true;
+    s->failure = "too few candidate pairs meet (" + std::to_string(inliers) + " of " +
+                 std::to_string(s->corr.lines_a.size()) + " < registration.min_inlier_ratio)";
+    return 0;
+  }
+  const int axes = unobserved_axes_at(s->table, s->best);
+  if (axes != 0) {
+    s->best_stats.degenerate = true;
+    s->failure = "unobservable motion (a push along one axis keeps the inliers)";
+  }
+  return axes;
+}
+
+// What the pairs do observe of a degenerate motion is kept, the rest follows the motion model (refine.hpp:
+// refine_motion_partial): the unobserved axes of an estimate, or the weak directions of an ill-conditioned
+// refined guess. The result must pass the same checks along the directions it does not hold.
+void LineRegistration::hold_unobserved(const RigidTransform& prediction, const RegistrationFrame& frame, int axes,
+                                       Passes* s, PassOutcome* out) const {
+  const RegistrationOptions& reg = config_->registration;
   const RigidTransform* partial_from = nullptr;
   bool lock_weak = false;
   const bool partial = reg.partial_updates && frame.have_velocity;  // no velocity yet: the prediction holds nothing
-  if (partial && have && best_stats.degenerate && axes != 0) {
-    partial_from = &best;
-  } else if (partial && !have && last_refine_converged && last_refined.line_inliers >= reg.min_inliers) {
-    partial_from = &last_refined.T;
+  if (partial && s->have && s->best_stats.degenerate && axes != 0) {
+    partial_from = &s->best;
+  } else if (partial && !s->have && s->last_refine_converged && s->last_refined.line_inliers >= reg.min_inliers) {
+    partial_from = &s->last_refined.T;
     lock_weak = true;
   }
+  int inliers = 0;
   for (int round = 0; partial_from && round < 2; ++round) {
     RefineResult partial;
-    if (!refine_motion_partial(corr, table, *partial_from, prediction, axes, lock_weak, ropt, &partial) ||
+    if (!refine_motion_partial(s->corr, s->table, *partial_from, prediction, axes, lock_weak, refine_options(),
+                               &partial) ||
         !within_reach(prediction, partial.T) || partial.degenerate || partial.line_inliers < reg.min_inliers ||
-        too_few_meet(partial.T, &inliers))
+        too_few_pairs_meet(s->corr, s->table, partial.T, &inliers))
       break;
     // An unobserved axis the held directions already (nearly) contain is held; another one is held too, once.
     int uncovered = 0;
-    const int unobserved = unobserved_axes(partial.T);
+    const int unobserved = unobserved_axes_at(s->table, partial.T);
     for (int axis = 0; axis < 6; ++axis)
       if ((unobserved >> axis & 1) &&
           partial.locked_basis.leftCols(partial.locked_directions).row(axis).norm() < kHeldAxisCosine)
@@ -273,28 +306,19 @@ PassOutcome LineRegistration::register_features(const ScanFeatures& prev, const 
       axes |= uncovered;
       continue;
     }
-    best = partial.T;
-    copy_refinement_stats(partial, &best_stats);
-    best_stats.covariance = partial.covariance;
-    best_stats.degenerate = false;
-    if (!have) best_stats.best_solver = -2;
-    have = true;
-    out.held_directions = partial.locked_directions;
-    out.held_sensitivity = partial.held_sensitivity;
-    out.held_projector = subspace_projector(partial.locked_basis.leftCols(partial.locked_directions));
-    failure = "partly unobserved motion: " + std::to_string(partial.locked_directions) +
-              " of 6 directions held by the motion model";
+    s->best = partial.T;
+    copy_refinement_stats(partial, &s->best_stats);
+    s->best_stats.covariance = partial.covariance;
+    s->best_stats.degenerate = false;
+    if (!s->have) s->best_stats.best_solver = -2;
+    s->have = true;
+    out->held_directions = partial.locked_directions;
+    out->held_sensitivity = partial.held_sensitivity;
+    out->held_projector = subspace_projector(partial.locked_basis.leftCols(partial.locked_directions));
+    s->failure = "partly unobserved motion: " + std::to_string(partial.locked_directions) +
+                 " of 6 directions held by the motion model";
     break;
   }
-
-  out.best = best;
-  out.stats = best_stats;
-  out.have = have;
-  out.failure = failure;
-  out.have_rival = have_rival;
-  out.rival = rival;
-  out.candidates = std::make_shared<const Correspondences>(std::move(corr));
-  return out;
 }
 
 PassOutcome LineRegistration::register_again(const ScanFeatures& prev, const ScanFeatures& cur,

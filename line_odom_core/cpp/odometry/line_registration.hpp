@@ -93,6 +93,12 @@ class LineRegistration {
   WorkerPool* pool() const { return pool_; }
 
  private:
+  struct Passes;  // (line_registration.cpp)
+  void run_pass(int pass, CandidateIndex& prev_index, const ScanFeatures& cur, const RigidTransform& prediction,
+                bool limit_pairs, const RegistrationFrame& frame, Passes* s, FrameStats* st) const;
+  int unobserved_after_passes(Passes* s) const;
+  void hold_unobserved(const RigidTransform& prediction, const RegistrationFrame& frame, int axes, Passes* s,
+                       PassOutcome* out) const;
   bool too_few_pairs_meet(const Correspondences& corr, const LinePairTable& table, const RigidTransform& T,
                           int* inliers) const;
   int unobserved_axes_at(const LinePairTable& table, const RigidTransform& T) const;
