@@ -154,6 +154,112 @@ def _tail(path: Path, lines: int = 5) -> str:
     return " | ".join(text[-lines:])
 
 
+def _start_node(inp, preset: str, overrides: Mapping[str, Any], guess_topic: str | None,
+                imu_topic: str | None) -> tuple[subprocess.Popen, Path]:
+    """The node in its own process (its output into a temporary log file, read for errors)."""
+    profile = _fastdds_profile()
+    if profile and "FASTDDS_DEFAULT_PROFILES_FILE" not in os.environ:
+        os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = profile
+        os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", profile)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    log_file = Path(tempfile.mkstemp(prefix="line_odom_node_", suffix=".log")[1])
+    with open(log_file, "wb") as log:
+        proc = subprocess.Popen(node_command(inp, preset, overrides, guess_topic, imu_topic), env=env, stdout=log,
+                                stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
+    return proc, log_file
+
+
+class _BagPublishers:
+    """The replaying node's publishers of what the bag holds for the node: /clock, the sensor topic (and its camera
+    info), the guess and IMU topics; /tf_static latched, as robot_state_publisher does."""
+
+    def __init__(self, node, inp, guess_topic: str | None, imu_topic: str | None, static_tf: list[bytes]):
+        from nav_msgs.msg import Odometry
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
+
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.clock = node.create_publisher(Clock, "/clock", 10)
+        self.data = node.create_publisher(PointCloud2 if inp.kind == "pointcloud" else Image, inp.topic, reliable)
+        self.by_topic = {inp.topic: self.data}
+        if inp.info_topic:
+            self.by_topic[inp.info_topic] = node.create_publisher(CameraInfo, inp.info_topic, reliable)
+        if guess_topic:
+            self.by_topic[guess_topic] = node.create_publisher(
+                Odometry, guess_topic, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        if imu_topic:
+            self.by_topic[imu_topic] = node.create_publisher(
+                Imu, imu_topic, QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE))
+        self.inputs = [(self.data, inp.topic)] + [(self.by_topic[t], t) for t in (guess_topic, imu_topic) if t]
+        if static_tf:
+            from rclpy.qos import DurabilityPolicy
+            from tf2_msgs.msg import TFMessage
+
+            static_pub = node.create_publisher(TFMessage, bags.TF_STATIC_TOPIC, QoSProfile(
+                depth=len(static_tf), reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL))
+            for raw in static_tf:
+                static_pub.publish(raw)
+
+    def topics(self) -> list[str]:
+        return list(self.by_topic)
+
+    def publish_clock(self, log_time_ns: int) -> None:
+        from rosgraph_msgs.msg import Clock
+
+        clock = Clock()
+        clock.clock.sec, clock.clock.nanosec = divmod(int(log_time_ns), 1_000_000_000)
+        self.clock.publish(clock)
+
+
+def _wait_until_connected(proc: subprocess.Popen, log_file: Path, pubs: _BagPublishers, sub) -> None:
+    """Until the node subscribes to every input and publishes its output; an error naming what is missing when it
+    exits first or does not connect within STARTUP_TIMEOUT_S."""
+    def not_connected() -> list[str]:
+        missing = [f"no subscription to {topic}" for pub, topic in pubs.inputs if pub.get_subscription_count() < 1]
+        return missing + ([f"no publisher of {NODE_OUTPUT_TOPIC}"] if sub.get_publisher_count() < 1 else [])
+
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    while missing := not_connected():
+        if proc.poll() is not None:
+            raise RuntimeError(f"the node exited with code {proc.returncode} before subscribing: {_tail(log_file)}")
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the node is not connected within {STARTUP_TIMEOUT_S:.0f} s "
+                               f"({', '.join(missing)}): {_tail(log_file)}")
+        time.sleep(0.05)
+    time.sleep(0.5)  # let discovery settle in both directions
+
+
+def _play(reader: bags.BagReader, inp, pubs: _BagPublishers, total: int, rate: float, proc: subprocess.Popen,
+          log_file: Path, progress) -> tuple[dict[int, float], int]:
+    """The bag's messages for the node published at `rate` x their log times' pace, /clock before each: the wall
+    time each sensor message went out, by its header stamp, and how many went out."""
+    published: dict[int, float] = {}
+    n_in = 0
+    wall0 = bag0 = None
+    for message in reader.messages(pubs.topics()):
+        if n_in >= total:
+            break
+        if wall0 is None:
+            wall0, bag0 = time.monotonic(), message.log_time_ns
+        delay = wall0 + (message.log_time_ns - bag0) * 1e-9 / rate - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        if proc.poll() is not None:
+            raise RuntimeError(f"the node exited with code {proc.returncode} during the replay: {_tail(log_file)}")
+        pubs.publish_clock(message.log_time_ns)
+        if message.topic != inp.topic:
+            pubs.by_topic[message.topic].publish(message.raw)
+            continue
+        published[header_stamp_ns(message.raw)] = time.monotonic()
+        pubs.data.publish(message.raw)
+        n_in += 1
+        if progress is not None:
+            progress.update(n_in, total)
+    return published, n_in
+
+
 def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
                  overrides: Mapping[str, Any] | None = None, frames: int | None = None, progress=None,
                  rate: float = 1.0, guess_topic: str | None = None, imu_topic: str | None = None):
@@ -165,28 +271,17 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
     import rclpy
     from nav_msgs.msg import Odometry
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
+    from rclpy.qos import QoSProfile
 
     from line_odom import convert
 
     preset = params or PRESET_FOR_INPUT[inp.kind]
     overrides = dict(overrides or {})
     T_base_sensor, static_tf = _sensor_in_base(reader, inp, node_settings(inp.kind, params, overrides)[1])
-    profile = _fastdds_profile()
-    if profile and "FASTDDS_DEFAULT_PROFILES_FILE" not in os.environ:
-        os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = profile
-        os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", profile)
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-
     total = reader.counts.get(inp.topic, 0)
     if frames is not None:
         total = min(total, frames)
-    log_file = Path(tempfile.mkstemp(prefix="line_odom_node_", suffix=".log")[1])
-    with open(log_file, "wb") as log:
-        proc = subprocess.Popen(node_command(inp, preset, overrides, guess_topic, imu_topic), env=env, stdout=log,
-                                stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
+    proc, log_file = _start_node(inp, preset, overrides, guess_topic, imu_topic)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("line_odom_replay", context=context)
@@ -199,74 +294,15 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         with lock:
             received[convert.stamp_to_ns(msg.header.stamp)] = (now, msg)
 
-    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-    clock_pub = node.create_publisher(Clock, "/clock", 10)
-    data_pub = node.create_publisher(PointCloud2 if inp.kind == "pointcloud" else Image, inp.topic, reliable)
-    info_pub = node.create_publisher(CameraInfo, inp.info_topic, reliable) if inp.info_topic else None
-    guess_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    guess_pub = node.create_publisher(Odometry, guess_topic, guess_qos) if guess_topic else None
-    imu_pub = node.create_publisher(Imu, imu_topic, QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE)) \
-        if imu_topic else None
-    if static_tf:  # latched for the node, as robot_state_publisher does
-        from rclpy.qos import DurabilityPolicy
-        from tf2_msgs.msg import TFMessage
-
-        static_pub = node.create_publisher(TFMessage, bags.TF_STATIC_TOPIC, QoSProfile(
-            depth=len(static_tf), reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        for raw in static_tf:
-            static_pub.publish(raw)
+    pubs = _BagPublishers(node, inp, guess_topic, imu_topic, static_tf)
     sub = node.create_subscription(Odometry, NODE_OUTPUT_TOPIC, on_odom, QoSProfile(depth=1000))
     executor.add_node(node)
     stop_spinning = spin_in_background(executor)
     published: dict[int, float] = {}
+    n_in = 0
     try:
-        inputs = [(data_pub, inp.topic), (guess_pub, guess_topic), (imu_pub, imu_topic)]
-
-        def not_connected() -> list[str]:
-            missing = [f"no subscription to {topic}" for pub, topic in inputs
-                       if pub is not None and pub.get_subscription_count() < 1]
-            return missing + ([f"no publisher of {NODE_OUTPUT_TOPIC}"] if sub.get_publisher_count() < 1 else [])
-
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while missing := not_connected():
-            if proc.poll() is not None:
-                raise RuntimeError(f"the node exited with code {proc.returncode} before subscribing: "
-                                   f"{_tail(log_file)}")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"the node is not connected within {STARTUP_TIMEOUT_S:.0f} s "
-                                   f"({', '.join(missing)}): {_tail(log_file)}")
-            time.sleep(0.05)
-        time.sleep(0.5)  # let discovery settle in both directions
-        wall0 = bag0 = None
-        n_in = 0
-        for message in reader.messages([inp.topic] + ([inp.info_topic] if inp.info_topic else [])
-                                       + ([guess_topic] if guess_topic else []) + ([imu_topic] if imu_topic else [])):
-            if n_in >= total:
-                break
-            if wall0 is None:
-                wall0, bag0 = time.monotonic(), message.log_time_ns
-            delay = wall0 + (message.log_time_ns - bag0) * 1e-9 / rate - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            if proc.poll() is not None:
-                raise RuntimeError(f"the node exited with code {proc.returncode} during the replay: {_tail(log_file)}")
-            clock = Clock()
-            clock.clock.sec, clock.clock.nanosec = divmod(int(message.log_time_ns), 1_000_000_000)
-            clock_pub.publish(clock)
-            if message.topic == inp.info_topic:
-                info_pub.publish(message.raw)
-                continue
-            if message.topic == guess_topic:
-                guess_pub.publish(message.raw)
-                continue
-            if message.topic == imu_topic:
-                imu_pub.publish(message.raw)
-                continue
-            published[header_stamp_ns(message.raw)] = time.monotonic()
-            data_pub.publish(message.raw)
-            n_in += 1
-            if progress is not None:
-                progress.update(n_in, total)
+        _wait_until_connected(proc, log_file, pubs, sub)
+        published, n_in = _play(reader, inp, pubs, total, rate, proc, log_file, progress)
         drain_until = time.monotonic() + DRAIN_TIMEOUT_S
         while time.monotonic() < drain_until:
             with lock:
@@ -279,8 +315,15 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.shutdown(context=context)
+    log_file.unlink(missing_ok=True)
     with lock:
         items = sorted(received.items())
+    return _replay_run(items, published, n_in, T_base_sensor)
+
+
+def _replay_run(items, published: dict[int, float], n_in: int, T_base_sensor: np.ndarray) -> ReplayRun:
+    """The node's Odometry messages (by stamp: arrival wall time, message) as the base's trajectory and the latency of
+    each frame (arrival - publication of its input)."""
     stamps, poses, msgs, latencies = [], [], [], []
     for stamp_ns, (arrival, msg) in items:
         _, T = bags.odometry_to_pose(msg)
@@ -289,6 +332,5 @@ def run_realtime(reader: bags.BagReader, inp, *, params: str | None = None,
         msgs.append((stamp_ns, msg))
         if stamp_ns in published:
             latencies.append(1e3 * (arrival - published[stamp_ns]))
-    log_file.unlink(missing_ok=True)
     estimate = evaluation.Trajectory(np.array(poses).reshape(-1, 4, 4), np.array(stamps, dtype=float))
     return ReplayRun(estimate, msgs, latencies, n_in, {"frames_published": n_in, "frames_received": len(items)})
