@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT / "test"))
 
 from node_harness import NodeProcess, pose_matrix, use_large_message_profile  # noqa: E402
 
+STAMP0 = 100.0  # the first frame's stamp (s); frame k is stamped STAMP0 + k / rate
 NODE_SETTINGS = {
     "preset": "vlp16",
     "publish_tf": True,
@@ -62,7 +63,7 @@ def relative_error(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]
     return float(np.linalg.norm(E[:3, 3])), float(angle)
 
 
-def main() -> int:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=5000)
     ap.add_argument("--rate", type=float, default=10.0, help="sensor rate (Hz)")
@@ -78,26 +79,10 @@ def main() -> int:
                     help="gyro bias the node is not told (deg/s, LiDAR axes)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="extra node/engine parameter (repeatable), e.g. --set registration.passes=2")
-    args = ap.parse_args()
+    return ap.parse_args()
 
-    os.environ["ROS_DOMAIN_ID"] = str(args.domain)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    os.environ["PYTHONUNBUFFERED"] = "1"
-    use_large_message_profile()
 
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-    from diagnostic_msgs.msg import DiagnosticArray
-    from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import Imu, PointCloud2
-
-    from line_odom import convert, sim
-    from line_odom.sim.gyro import gyro_samples
-
+def node_params(args: argparse.Namespace) -> dict:
     params = dict(NODE_SETTINGS)
     if args.imu:
         params["imu.enabled"] = True
@@ -106,91 +91,161 @@ def main() -> int:
         params[key] = type(params[key])(value) if key in params and not isinstance(params[key], bool) else (
             value == "true" if value in ("true", "false") else float(value) if "." in value else int(value)
             if value.lstrip("-").isdigit() else value)
+    return params
 
-    run = sim.make("street", frames=args.frames, seed=args.seed, rate_hz=args.rate,
-                   sensor=sim.Lidar.vlp16(columns=args.columns, seed=args.seed, rate_hz=args.rate),
-                   motion_distortion=args.distortion)
-    truth = run.trajectory.poses
-    stamp0 = 100.0  # stamps in seconds: stamp0 + k / rate
-    gyro_stamps, gyro_rates = np.empty(0), np.empty((0, 3))
-    if args.imu:  # up to the end of the last sweep, one period past the last stamp
-        gyro_poses = np.concatenate([truth, run.trajectory.pose_at(run.trajectory.stamps[-1] + 1.0 / args.rate)[None]])
-        gyro_pose_stamps = stamp0 + np.r_[run.trajectory.stamps, run.trajectory.stamps[-1] + 1.0 / args.rate]
-        gyro_stamps, gyro_rates = gyro_samples(gyro_poses, gyro_pose_stamps, rate_hz=args.imu_rate,
-                                               offset=0.5 / args.imu_rate, noise_std=np.radians(args.imu_noise),
-                                               bias=np.radians(args.imu_bias), seed=args.seed)
 
-    node = NodeProcess(dict(os.environ), params=params)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    part = rclpy.create_node("soak_" + str(os.getpid()), context=ctx)
-    lock = threading.Lock()
-    received: dict[int, tuple[float, np.ndarray, bool]] = {}  # frame index -> (receive time, pose, finite)
-    diag: dict[str, str] = {}
-    diag_level = collections.Counter()
+class Drive:
+    """The simulated street drive: its frames, ground-truth poses and (with --imu) gyro samples, stamped from
+    STAMP0 at the sensor rate."""
 
-    def on_odom(msg):
+    def __init__(self, args: argparse.Namespace):
+        from line_odom import sim
+        from line_odom.sim.gyro import gyro_samples
+
+        self.run = sim.make("street", frames=args.frames, seed=args.seed, rate_hz=args.rate,
+                            sensor=sim.Lidar.vlp16(columns=args.columns, seed=args.seed, rate_hz=args.rate),
+                            motion_distortion=args.distortion)
+        self.truth = self.run.trajectory.poses
+        self.gyro_stamps, self.gyro_rates = np.empty(0), np.empty((0, 3))
+        if args.imu:  # up to the end of the last sweep, one period past the last stamp
+            trajectory = self.run.trajectory
+            end = trajectory.stamps[-1] + 1.0 / args.rate
+            poses = np.concatenate([self.truth, trajectory.pose_at(end)[None]])
+            self.gyro_stamps, self.gyro_rates = gyro_samples(
+                poses, STAMP0 + np.r_[trajectory.stamps, end], rate_hz=args.imu_rate, offset=0.5 / args.imu_rate,
+                noise_std=np.radians(args.imu_noise), bias=np.radians(args.imu_bias), seed=args.seed)
+
+    def render_ahead(self, args: argparse.Namespace) -> queue.Queue:
+        """The frames as PointCloud2 messages, rendered on a thread so the sensor-rate schedule does not wait for the
+        ray caster: (index, message) items, then None."""
+        from line_odom import convert
+
+        frames_q: queue.Queue = queue.Queue(maxsize=50)
+
+        def render():
+            for i, frame in enumerate(self.run):
+                msg = convert.pointcloud2_from_xyz(frame.data.points, ring=frame.data.ring, frame_id="velodyne",
+                                                   time=frame.data.time if args.distortion else None,
+                                                   stamp=STAMP0 + i / args.rate)
+                frames_q.put((i, msg))
+            frames_q.put(None)
+
+        threading.Thread(target=render, daemon=True).start()
+        return frames_q
+
+
+class Listener:
+    """The node's odom (by frame index: receive time, pose, every field finite) and its odometry diagnostics (the
+    latest values, the levels seen)."""
+
+    def __init__(self, part, node: NodeProcess, rate: float):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from nav_msgs.msg import Odometry
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        self.node, self.rate = node, rate
+        self.lock = threading.Lock()
+        self.received: dict[int, tuple[float, np.ndarray, bool]] = {}
+        self.diag: dict[str, str] = {}
+        self.levels = collections.Counter()
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        part.create_subscription(Odometry, f"{node.namespace}/odom", self.on_odom, reliable)
+        part.create_subscription(DiagnosticArray, "/diagnostics", self.on_diag, reliable)
+
+    def on_odom(self, msg) -> None:
+        from line_odom import convert
+
         now = time.monotonic()
-        k = int(round((convert.stamp_to_sec(msg.header.stamp) - stamp0) * args.rate))
+        k = int(round((convert.stamp_to_sec(msg.header.stamp) - STAMP0) * self.rate))
         values = np.r_[[msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z,
                         msg.pose.pose.orientation.x, msg.pose.pose.orientation.y, msg.pose.pose.orientation.z,
                         msg.pose.pose.orientation.w], msg.pose.covariance, msg.twist.covariance,
                        [msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z,
                         msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z]]
         finite = bool(np.isfinite(values).all())
-        with lock:
-            received[k] = (now, pose_matrix(msg.pose.pose) if finite else np.full((4, 4), np.nan), finite)
+        with self.lock:
+            self.received[k] = (now, pose_matrix(msg.pose.pose) if finite else np.full((4, 4), np.nan), finite)
 
-    def on_diag(msg):
+    def on_diag(self, msg) -> None:
         for status in msg.status:
-            if status.name == f"{node.namespace}/line_odom: odometry":
-                with lock:
-                    diag.clear()
-                    diag.update({kv.key: kv.value for kv in status.values})
-                    diag_level[int.from_bytes(status.level, "little") if isinstance(status.level, bytes)
-                               else int(status.level)] += 1
+            if status.name == f"{self.node.namespace}/line_odom: odometry":
+                with self.lock:
+                    self.diag.clear()
+                    self.diag.update({kv.key: kv.value for kv in status.values})
+                    self.levels[int.from_bytes(status.level, "little") if isinstance(status.level, bytes)
+                                else int(status.level)] += 1
 
-    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    part.create_subscription(Odometry, f"{node.namespace}/odom", on_odom, reliable)
-    part.create_subscription(DiagnosticArray, "/diagnostics", on_diag, reliable)
-    pub = part.create_publisher(PointCloud2, f"{node.namespace}/points",
-                                QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
-    imu_pub = (part.create_publisher(Imu, f"{node.namespace}/imu",
-                                     QoSProfile(depth=400, reliability=ReliabilityPolicy.BEST_EFFORT))
-               if args.imu else None)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(part)
-    spinning = True
+    def snapshot(self) -> tuple[dict, dict, dict]:
+        with self.lock:
+            return dict(self.received), dict(self.diag), dict(self.levels)
 
-    def spin():
-        while spinning:
-            try:
-                executor.spin_once(timeout_sec=0.05)
-            except Exception:  # noqa: BLE001 - shutting down
-                if spinning:
-                    raise
 
-    spin_thread = threading.Thread(target=spin, daemon=True)
-    spin_thread.start()
+class Schedule:
+    """Publishes the scans at the sensor rate, and (with --imu) the gyro samples at their own times before each scan
+    whose sweep they cover; counts late ticks and samples, samples the node's RSS."""
 
-    # frames are rendered ahead on a thread so the 10 Hz schedule does not wait for the ray caster
-    frames_q: queue.Queue = queue.Queue(maxsize=50)
+    def __init__(self, args: argparse.Namespace, node: NodeProcess, pub, imu_pub, drive: Drive):
+        self.args, self.node, self.pub, self.imu_pub, self.drive = args, node, pub, imu_pub, drive
+        self.period = 1.0 / args.rate
+        self.published: dict[int, float] = {}
+        self.rss_trend: list[tuple[int, float]] = []
+        self.rss_start = float("nan")
+        self.late_publishes = self.imu_sent = self.late_imu = 0
+        self.crashed = False
 
-    def render():
-        for i, frame in enumerate(run):
-            msg = convert.pointcloud2_from_xyz(frame.data.points, ring=frame.data.ring, frame_id="velodyne",
-                                               time=frame.data.time if args.distortion else None,
-                                               stamp=stamp0 + i / args.rate)
-            frames_q.put((i, msg))
-        frames_q.put(None)
+    def send_imu_until(self, stamp: float, scan_due: float) -> None:
+        """The gyro samples stamped up to `stamp`, each at its own time: scan_due (when the scan stamped one period
+        before `stamp` goes out) less the sample's lead on `stamp`."""
+        from sensor_msgs.msg import Imu
 
-    threading.Thread(target=render, daemon=True).start()
+        from line_odom import convert
 
-    inputs = (", motion-distorted sweeps with point times" if args.distortion else "") + (
-        f", gyro {args.imu_rate:g} Hz noise {args.imu_noise:g} deg/s bias {tuple(args.imu_bias)} deg/s" if args.imu
-        else "")
-    print(f"soak: {args.frames} frames at {args.rate:g} Hz, VLP-16 x {args.columns} columns{inputs}, node "
-          f"{node.namespace} (pid {node.proc.pid}), params {params}", flush=True)
+        stamps, rates = self.drive.gyro_stamps, self.drive.gyro_rates
+        while self.imu_sent < len(stamps) and stamps[self.imu_sent] <= stamp + 1e-9:
+            due = scan_due - (stamp - stamps[self.imu_sent])
+            now = time.monotonic()
+            if now < due:
+                time.sleep(due - now)
+            elif now - due > self.period:
+                self.late_imu += 1
+            sample = Imu()
+            sample.header.stamp = convert.sec_to_stamp(float(stamps[self.imu_sent]))
+            sample.header.frame_id = "velodyne"
+            (sample.angular_velocity.x, sample.angular_velocity.y,
+             sample.angular_velocity.z) = (float(v) for v in rates[self.imu_sent])
+            sample.orientation_covariance[0] = -1.0  # a gyro: no orientation
+            self.imu_pub.publish(sample)
+            self.imu_sent += 1
+
+    def run(self, frames_q: queue.Queue, listener: Listener) -> None:
+        # with the gyro, the first scan goes out when its sweep is complete, its samples at their times before it
+        t_next = time.monotonic() + (self.period if self.imu_pub is not None else 0.0)
+        while (item := frames_q.get()) is not None:
+            i, msg = item
+            if self.imu_pub is not None:  # the sweep of scan i ends one period after its stamp: the gyro covered it
+                self.send_imu_until(STAMP0 + (i + 1) / self.args.rate, t_next)
+            now = time.monotonic()
+            if now < t_next:
+                time.sleep(t_next - now)
+            elif now - t_next > self.period:
+                self.late_publishes += 1
+            t_next += self.period
+            self.published[i] = time.monotonic()
+            self.pub.publish(msg)
+            if self.node.proc.poll() is not None:
+                self.crashed = True
+                break
+            if i == 20:
+                self.rss_start = rss_mb(self.node.proc.pid)
+            if i % 250 == 0:
+                self.rss_trend.append((i, rss_mb(self.node.proc.pid)))
+                received, diag, _ = listener.snapshot()
+                print(f"  frame {i:5d}: out {len(received):5d}, node RSS {self.rss_trend[-1][1]:.1f} MB, dropped "
+                      f"{diag.get('frames_dropped', '?')}", flush=True)
+
+
+def wait_for_node(node: NodeProcess, part, pub, imu_pub, frames_q: queue.Queue) -> None:
+    """Until the node subscribes to the scans (and the gyro) and publishes odom, then a head start for the renderer."""
     deadline = time.monotonic() + 90
     while (pub.get_subscription_count() == 0 or part.count_publishers(f"{node.namespace}/odom") == 0
            or (imu_pub is not None and imu_pub.get_subscription_count() == 0)):
@@ -199,95 +254,28 @@ def main() -> int:
             raise SystemExit("node did not come up")
         time.sleep(0.1)
     time.sleep(1.0)
-    while frames_q.qsize() < 20:  # a head start for the renderer
+    while frames_q.qsize() < 20:
         time.sleep(0.1)
 
-    published: dict[int, float] = {}
-    rss_trend: list[tuple[int, float]] = []
-    rss_start = None
-    period = 1.0 / args.rate
-    # with the gyro, the first scan goes out when its sweep is complete, its samples at their times before it
-    t_next = time.monotonic() + (period if args.imu else 0.0)
-    late_publishes = 0
-    crashed = False
-    imu_sent = 0
-    late_imu = 0
 
-    def send_imu_until(stamp: float, scan_due: float) -> None:
-        """The gyro samples stamped up to `stamp`, each at its own time: scan_due (when the scan stamped one period
-        before `stamp` goes out) less the sample's lead on `stamp`."""
-        nonlocal imu_sent, late_imu
-        while imu_sent < len(gyro_stamps) and gyro_stamps[imu_sent] <= stamp + 1e-9:
-            due = scan_due - (stamp - gyro_stamps[imu_sent])
-            now = time.monotonic()
-            if now < due:
-                time.sleep(due - now)
-            elif now - due > period:
-                late_imu += 1
-            sample = Imu()
-            sample.header.stamp = convert.sec_to_stamp(float(gyro_stamps[imu_sent]))
-            sample.header.frame_id = "velodyne"
-            (sample.angular_velocity.x, sample.angular_velocity.y,
-             sample.angular_velocity.z) = (float(v) for v in gyro_rates[imu_sent])
-            sample.orientation_covariance[0] = -1.0  # a gyro: no orientation
-            imu_pub.publish(sample)
-            imu_sent += 1
-    while True:
-        item = frames_q.get()
-        if item is None:
-            break
-        i, msg = item
-        if imu_pub is not None:  # the sweep of scan i ends one period after its stamp: the gyro has covered it
-            send_imu_until(stamp0 + (i + 1) / args.rate, t_next)
-        now = time.monotonic()
-        if now < t_next:
-            time.sleep(t_next - now)
-        elif now - t_next > period:
-            late_publishes += 1
-        t_next += period
-        published[i] = time.monotonic()
-        pub.publish(msg)
-        if node.proc.poll() is not None:
-            crashed = True
-            break
-        if i == 20:
-            rss_start = rss_mb(node.proc.pid)
-        if i % 250 == 0:
-            rss_trend.append((i, rss_mb(node.proc.pid)))
-            with lock:
-                n_out = len(received)
-            print(f"  frame {i:5d}: out {n_out:5d}, node RSS {rss_trend[-1][1]:.1f} MB, dropped "
-                  f"{diag.get('frames_dropped', '?')}", flush=True)
-    time.sleep(3.0)  # let the last frames through
-    rss_end = rss_mb(node.proc.pid)
-    with lock:
-        got = dict(received)
-        final_diag = dict(diag)
-        levels = dict(diag_level)
-    crashed = crashed or node.proc.poll() is not None
-    spinning = False
-    spin_thread.join(timeout=5)
-    log = ""
-    try:
-        log = node.stop()
-    except AssertionError as err:
-        crashed = True
-        log = str(err)
-    executor.shutdown()
-    part.destroy_node()
-    ctx.try_shutdown()
-
-    latencies = np.array([(got[k][0] - published[k]) * 1e3 for k in got if k in published])
-    nan_poses = sum(1 for v in got.values() if not v[2])
-    # frame-to-frame error between consecutive received frames against ground truth
+def frame_to_frame_errors(got: dict, truth: np.ndarray) -> tuple[list[int], list[float], list[float]]:
+    """Between consecutive received frames with finite poses: the frames, translation (m) and rotation (deg) errors
+    against the ground truth."""
     ks = sorted(k for k in got if got[k][2])
     t_err, r_err = [], []
     for a, b in zip(ks, ks[1:]):
-        T_est = np.linalg.inv(got[a][1]) @ got[b][1]
-        T_true = np.linalg.inv(truth[a]) @ truth[b]
-        e = relative_error(T_est, T_true)
+        e = relative_error(np.linalg.inv(got[a][1]) @ got[b][1], np.linalg.inv(truth[a]) @ truth[b])
         t_err.append(e[0])
         r_err.append(e[1])
+    return ks, t_err, r_err
+
+
+def print_summary(args: argparse.Namespace, schedule: Schedule, got: dict, final_diag: dict, levels: dict,
+                  rss_end: float, crashed: bool, truth: np.ndarray) -> int:
+    published = schedule.published
+    latencies = np.array([(got[k][0] - published[k]) * 1e3 for k in got if k in published])
+    nan_poses = sum(1 for v in got.values() if not v[2])
+    ks, t_err, r_err = frame_to_frame_errors(got, truth)
     n_in, n_out = len(published), len(got)
     print()
     print(f"soak results ({datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.node()}, "
@@ -300,15 +288,16 @@ def main() -> int:
     print(f"  node frames_dropped          {final_diag.get('frames_dropped', '?')} (latest-wins replacements)")
     print(f"  node malformed/failed/dup    {final_diag.get('frames_malformed', '?')}/"
           f"{final_diag.get('frames_failed', '?')}/{final_diag.get('frames_duplicate', '?')}")
-    print(f"  publisher late ticks         {late_publishes}")
+    print(f"  publisher late ticks         {schedule.late_publishes}")
     if latencies.size:
         print(f"  latency ms p50/p95/max       {np.percentile(latencies, 50):.1f} / {np.percentile(latencies, 95):.1f} / "
               f"{latencies.max():.1f}   (publish -> Odometry received, end to end)")
     print(f"  node latency ms mean/p95     {final_diag.get('latency_ms_mean', '?')} / "
           f"{final_diag.get('latency_ms_p95', '?')}   (receive -> processed, last 200 frames)")
+    rss_start = schedule.rss_start
     print(f"  node RSS MB start/end        {rss_start:.1f} / {rss_end:.1f}  (growth {rss_end - rss_start:+.1f} MB; "
           f"start = after frame 20)")
-    print("  node RSS trend MB            " + ", ".join(f"{i}:{m:.0f}" for i, m in rss_trend))
+    print("  node RSS trend MB            " + ", ".join(f"{i}:{m:.0f}" for i, m in schedule.rss_trend))
     print(f"  NaN poses                    {nan_poses}")
     print(f"  crashes                      {int(crashed)}")
     print(f"  diagnostics levels seen      {levels}  (0 OK, 1 WARN, 2 ERROR)")
@@ -318,7 +307,7 @@ def main() -> int:
               f"{'all, the first by the gyro' if args.imu else 'the first two (no velocity yet) as measured'})")
         print(f"  node point_times_ignored     {final_diag.get('point_times_ignored', '?')}")
     if args.imu:
-        print(f"  gyro samples sent / late     {imu_sent} / {late_imu}")
+        print(f"  gyro samples sent / late     {schedule.imu_sent} / {schedule.late_imu}")
         print(f"  node frames_imu              {final_diag.get('frames_imu', '?')} (every scan after the first)")
         print(f"  node frames_without_imu      {final_diag.get('frames_without_imu', '?')}")
         print(f"  node imu_rejected            {final_diag.get('imu_rejected', '?')}")
@@ -337,6 +326,66 @@ def main() -> int:
         T_end_err = np.linalg.inv(np.linalg.inv(truth[ks[0]]) @ truth[ks[-1]]) @ (
             np.linalg.inv(got[ks[0]][1]) @ got[ks[-1]][1])
         print(f"  end-point drift              {np.linalg.norm(T_end_err[:3, 3]):.2f} m over {dist:.0f} m")
+    return nan_poses
+
+
+def main() -> int:
+    args = parse_args()
+    os.environ["ROS_DOMAIN_ID"] = str(args.domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    os.environ["PYTHONUNBUFFERED"] = "1"
+    use_large_message_profile()
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu, PointCloud2
+
+    from line_odom.replay_realtime import spin_in_background
+
+    params = node_params(args)
+    drive = Drive(args)
+    node = NodeProcess(dict(os.environ), params=params)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    part = rclpy.create_node("soak_" + str(os.getpid()), context=ctx)
+    listener = Listener(part, node, args.rate)
+    pub = part.create_publisher(PointCloud2, f"{node.namespace}/points",
+                                QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
+    imu_pub = (part.create_publisher(Imu, f"{node.namespace}/imu",
+                                     QoSProfile(depth=400, reliability=ReliabilityPolicy.BEST_EFFORT))
+               if args.imu else None)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(part)
+    stop_spinning = spin_in_background(executor)
+    frames_q = drive.render_ahead(args)
+
+    inputs = (", motion-distorted sweeps with point times" if args.distortion else "") + (
+        f", gyro {args.imu_rate:g} Hz noise {args.imu_noise:g} deg/s bias {tuple(args.imu_bias)} deg/s" if args.imu
+        else "")
+    print(f"soak: {args.frames} frames at {args.rate:g} Hz, VLP-16 x {args.columns} columns{inputs}, node "
+          f"{node.namespace} (pid {node.proc.pid}), params {params}", flush=True)
+    wait_for_node(node, part, pub, imu_pub, frames_q)
+    schedule = Schedule(args, node, pub, imu_pub, drive)
+    schedule.run(frames_q, listener)
+    time.sleep(3.0)  # let the last frames through
+    rss_end = rss_mb(node.proc.pid)
+    got, final_diag, levels = listener.snapshot()
+    crashed = schedule.crashed or node.proc.poll() is not None
+    stop_spinning()
+    log = ""
+    try:
+        log = node.stop()
+    except AssertionError as err:
+        crashed = True
+        log = str(err)
+    executor.shutdown()
+    part.destroy_node()
+    ctx.try_shutdown()
+
+    nan_poses = print_summary(args, schedule, got, final_diag, levels, rss_end, crashed, drive.truth)
     if "Traceback" in log:
         print(log[-3000:])
     return 1 if crashed or nan_poses else 0
