@@ -288,45 +288,17 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
   out.reference = frame.prediction;
   if (!lines_.config().validation.enabled) return out;
   Stopwatch watch;
-  RigidTransform by_points;
-  Mat6 points_covariance;
-  int matched = 0;
   bool travelled = false;  // a first motion's alignment the points showed the scan travelled to
-  // A first motion is aligned from standing still and from the starts along the directions a vehicle travels that the
-  // points fit best: from standing still alone, a sparse scan of a car at highway speed falls into standing still's
-  // basin (its rings' points match the one-scan map's where they sat), even where they fit the right motion clearly
-  // better (align_from_starts).
-  const double reach = lines_.config().registration.max_translation;
-  auto take_aligned_before = [&](const MapAlignment& before) {
-    by_points = before.motion;
-    matched = before.matched;
-    points_covariance = before.covariance;
-    return before.aligned;
-  };
-  const bool aligned =
-      !frame.guessed &&
-      (frame.first_motion ? point_map.align_from_starts(*frame.points, frame.previous_pose, frame.prediction,
-                                                        travel_directions(*frame.current), reach,
-                                                        lines_.config().validation.significance, &by_points, &matched,
-                                                        &points_covariance, &travelled)
-       : frame.aligned_before ? take_aligned_before(*frame.aligned_before)
-                              : point_map.align(*frame.points, frame.previous_pose, frame.prediction, &by_points,
-                                                &matched, &points_covariance));
-  st->points_aligned = aligned;
-  st->point_map_matches = matched;
-  const RigidTransform* points = aligned ? &by_points : nullptr;
-  const bool judged = judges(frame, point_map, points);
-  const RigidTransform reference = aligned ? by_points : frame.prediction;  // what open directions are held at
-  // Where the points' motion is taken, the scan enters the map there; a first motion only beyond the alignment
-  // kernel's width of standing still: the one-scan map's alignment may have fallen into standing still's basin (a
-  // sparse scan moving 1.5 m aligned at 0.07 m), and the map built on it would confirm that motion after.
-  const bool placed_by_points =
-      aligned && (!frame.first_motion || by_points.t.norm() > point_map.alignment_kernel_scale());
+  const MapAlignment points = align_to_map(frame, point_map, &travelled);
+  st->points_aligned = points.aligned;
+  st->point_map_matches = points.matched;
+  const RigidTransform* by_points = points.aligned ? &points.motion : nullptr;
+  const bool judged = judges(frame, point_map, by_points);
 
   Judgement judgement;
   int off_guess = 0;
   if (registered_in_full(*outcome)) {
-    judge(frame, *outcome, point_map, points, points_covariance, &judgement);
+    judge(frame, *outcome, point_map, by_points, points.covariance, &judgement);
     // A guess (wheel odometry) measured the distance travelled apart from the lines: a registration translated
     // farther from it than the tolerance is the lines' other valley point, not the guess's error (a slow car among
     // faster traffic: pairs on the passing cars support the motion mirrored about standing still, McNemar z above the
@@ -338,25 +310,74 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     }
   }
   const bool partly_registered = outcome->have && outcome->held_directions > 0;
-  if (aligned && judgement.open != 0 &&
+  if (points.aligned && judgement.open != 0 &&
       (frame.first_motion || (!registered_in_full(*outcome) && !partly_registered)))
-    register_from_points(frame, point_map, by_points, points_covariance, outcome, &judgement, st);
+    register_from_points(frame, point_map, points.motion, points.covariance, outcome, &judgement, st);
+  if (judged && outcome->have && outcome->held_directions > 0)
+    hold_at_the_map(frame, points.motion, points.covariance, outcome, &out);
+  st->observability = judgement.obs.z;
+  st->unobserved = registered_in_full(*outcome) ? judgement.open : 0;
+  settle_open_directions(frame, point_map, judgement, points, judged, travelled, off_guess, outcome, &out);
+  if (judged) {
+    out.judged = true;
+    out.by_points = points.motion;
+    out.resolved = resolved_axes(points.covariance,
+                                 observability_push(outcome->have ? outcome->best : frame.prediction,
+                                                    lines_.config().validation),
+                                 judgement.obs.lever);
+  }
+  st->ms.validation += watch.ms();
+  return out;
+}
+
+// A first motion is aligned from standing still and from the starts along the directions a vehicle travels that the
+// points fit best: from standing still alone, a sparse scan of a car at highway speed falls into standing still's
+// basin (its rings' points match the one-scan map's where they sat), even where they fit the right motion clearly
+// better (align_from_starts). A guessed frame is not aligned; a frame aligned before its lines takes that alignment.
+MapAlignment MotionValidation::align_to_map(const ValidationFrame& frame, const PointMapTracker& point_map,
+                                            bool* travelled) const {
+  MapAlignment points;
+  if (frame.guessed) return points;
+  if (frame.first_motion) {
+    points.aligned = point_map.align_from_starts(
+        *frame.points, frame.previous_pose, frame.prediction, travel_directions(*frame.current),
+        lines_.config().registration.max_translation, lines_.config().validation.significance, &points.motion,
+        &points.matched, &points.covariance, travelled);
+  } else if (frame.aligned_before) {
+    points = *frame.aligned_before;
+  } else {
+    points.aligned = point_map.align(*frame.points, frame.previous_pose, frame.prediction, &points.motion,
+                                     &points.matched, &points.covariance);
+  }
+  return points;
+}
+
+// The directions a registration in full leaves open: held at the points' alignment (or a guess), the points'
+// alignment taken, or flagged at the lines' motion, `outcome->failure` saying why.
+void MotionValidation::settle_open_directions(const ValidationFrame& frame, const PointMapTracker& point_map,
+                                              const Judgement& judgement, const MapAlignment& points, bool judged,
+                                              bool travelled, int off_guess, PassOutcome* outcome,
+                                              Validated* out) const {
+  const bool aligned = points.aligned;
+  const RigidTransform& by_points = points.motion;
+  const RigidTransform reference = aligned ? by_points : frame.prediction;  // what open directions are held at
+  // Where the points' motion is taken, the scan enters the map there; a first motion only beyond the alignment
+  // kernel's width of standing still: the one-scan map's alignment may have fallen into standing still's basin (a
+  // sparse scan moving 1.5 m aligned at 0.07 m), and the map built on it would confirm that motion after.
+  const bool placed_by_points =
+      aligned && (!frame.first_motion || by_points.t.norm() > point_map.alignment_kernel_scale());
   const Correspondences& corr = judgement.corr;
   const Observability& obs = judgement.obs;
   const int open = judgement.open;
   const int reversed = judgement.reversed, leaning = judgement.leaning, unpinned = judgement.unpinned,
             two_way = judgement.two_way;
-  if (judged && outcome->have && outcome->held_directions > 0)
-    hold_at_the_map(frame, by_points, points_covariance, outcome, &out);
-  st->observability = obs.z;
-  st->unobserved = registered_in_full(*outcome) ? open : 0;
 
   // Where the lines leave a direction open that the points put elsewhere, their valley (a turn traded for a shift) is
   // held there too: held on that axis alone, the lines slide along the rest of it.
   const Mat6 valley = unpinned != 0 ? valley_projector(outcome->stats.covariance, obs.lever) : Mat6::Zero();
   // The axes the points' alignment resolves at the lines' motion's tolerance.
   const double tolerance = observability_push(outcome->best, lines_.config().validation);
-  const int points_resolve = aligned ? resolved_axes(points_covariance, tolerance, obs.lever) : 0;
+  const int points_resolve = aligned ? resolved_axes(points.covariance, tolerance, obs.lever) : 0;
   // A translation so held shows the lines at another point of that valley than the scene's motion, beyond the
   // covariance's local reach: refitted with the shift held, their turn moves along it, away from the points'. So the
   // rotations the points resolve are held at their alignment too.
@@ -395,40 +416,30 @@ Validated MotionValidation::validate(const ValidationFrame& frame, const PointMa
     } else if (aligned && open == kAllAxes) {
       outcome->have = false;
       outcome->failure = std::string(why) + ": the point map's alignment taken";
-      out.reference = by_points;
-      out.held_at_points = placed_by_points;
+      out->reference = by_points;
+      out->held_at_points = placed_by_points;
     } else if ((aligned || frame.guessed) &&
                lines_.hold_directions(corr, LinePairTable(corr), reference, (open & ~leaning) | turns_held,
                                       unpinned != 0 ? &valley : nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess") +
                          (turns_held != 0 ? ", with " + axes_text(turns_held) : "");
-      out.reference = reference;
-      out.held_at_points = aligned;
+      out->reference = reference;
+      out->held_at_points = aligned;
     } else if (judged) {
       // The lines cannot be held there (their inliers are other pairs at the points' motion): the points' alignment,
       // not the lines' unconfirmed motion, is what the next frames predict from.
       outcome->have = false;
       outcome->failure = std::string(why) + ": the point map's alignment taken";
-      out.reference = by_points;
-      out.held_at_points = placed_by_points;
+      out->reference = by_points;
+      out->held_at_points = placed_by_points;
     } else {
       outcome->failure = why;
     }
   } else if (aligned && !outcome->have) {
     outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + "the point map's alignment taken";
-    out.reference = by_points;
-    out.held_at_points = placed_by_points;
+    out->reference = by_points;
+    out->held_at_points = placed_by_points;
   }
-  if (judged) {
-    out.judged = true;
-    out.by_points = by_points;
-    out.resolved = resolved_axes(points_covariance,
-                                 observability_push(outcome->have ? outcome->best : frame.prediction,
-                                                    lines_.config().validation),
-                                 obs.lever);
-  }
-  st->ms.validation += watch.ms();
-  return out;
 }
 
 void MotionValidation::judge(const ValidationFrame& frame, const PassOutcome& outcome, const PointMapTracker& point_map,

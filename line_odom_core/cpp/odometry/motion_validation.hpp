@@ -69,6 +69,13 @@ class MotionValidation {
 
  private:
   struct Judgement;  // what the checks found of a registration (motion_validation.cpp)
+  // This scan's points aligned to the map (not aligned for a guessed frame); *travelled: a first motion's alignment
+  // the points showed the scan travelled to.
+  MapAlignment align_to_map(const ValidationFrame& frame, const PointMapTracker& point_map, bool* travelled) const;
+  // The directions a registration in full leaves open (judgement.open) held, taken from the points, or flagged.
+  void settle_open_directions(const ValidationFrame& frame, const PointMapTracker& point_map,
+                              const Judgement& judgement, const MapAlignment& points, bool judged, bool travelled,
+                              int off_guess, PassOutcome* outcome, Validated* out) const;
   // observe and open_directions of `outcome`, into *judgement.
   void judge(const ValidationFrame& frame, const PassOutcome& outcome, const PointMapTracker& point_map,
              const RigidTransform* points, const Mat6& points_covariance, Judgement* judgement) const;
