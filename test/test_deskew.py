@@ -417,7 +417,6 @@ def test_a_sensor_standing_still_is_not_set_turning_by_the_trend_of_flagged_fram
     assert turns.mean() < 0.3 and turns[good].max(initial=0.0) < 0.6, (turns.round(2), good)
 
 
-
 @pytest.mark.parametrize("downsample", [1, 2, 3, 4, 6])
 def test_a_sensor_standing_still_reports_each_frame_within_its_covariance(downsample):
     """The same real recording (a 32-beam Velodyne standing in a room) at full resolution and thinned to 1/4 .. 1/36:
@@ -425,6 +424,8 @@ def test_a_sensor_standing_still_reports_each_frame_within_its_covariance(downsa
     reported as good roll about half a degree a frame (a room's lines 1-4 m away move less than the inlier threshold
     under such a turn): their covariance says as much, so a filter downstream weighs them at that. A covariance that
     claimed the lines' least-squares precision would put those frames tens of sigmas out."""
+    from scipy.stats import chi2
+
     from line_odom.metrics import motion_errors, nees
 
     frames, config = standing_recording(downsample)
@@ -436,5 +437,4 @@ def test_a_sensor_standing_still_reports_each_frame_within_its_covariance(downsa
     deltas = np.array([res.delta for res in results[1:]])
     errors = motion_errors(deltas, np.repeat(np.eye(4)[None], len(deltas), axis=0))
     per_frame = nees(errors, np.array([res.covariance for res in results[1:]]))
-    chi2_6dof_999 = 22.46  # 99.9 % of a chi-square with 6 degrees of freedom
-    assert per_frame.max() < chi2_6dof_999, (per_frame.round(1), np.degrees(np.linalg.norm(errors[:, 3:], axis=1)))
+    assert per_frame.max() < chi2.ppf(0.999, df=6), (per_frame.round(1), np.degrees(np.linalg.norm(errors[:, 3:], axis=1)))
