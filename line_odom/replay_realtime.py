@@ -180,6 +180,7 @@ class _BagPublishers:
         from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.clock_type = Clock
         self.clock = node.create_publisher(Clock, "/clock", 10)
         self.data = node.create_publisher(PointCloud2 if inp.kind == "pointcloud" else Image, inp.topic, reliable)
         self.by_topic = {inp.topic: self.data}
@@ -206,9 +207,7 @@ class _BagPublishers:
         return list(self.by_topic)
 
     def publish_clock(self, log_time_ns: int) -> None:
-        from rosgraph_msgs.msg import Clock
-
-        clock = Clock()
+        clock = self.clock_type()
         clock.clock.sec, clock.clock.nanosec = divmod(int(log_time_ns), 1_000_000_000)
         self.clock.publish(clock)
 
