@@ -143,6 +143,9 @@ class Listener:
         from nav_msgs.msg import Odometry
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+        from line_odom import convert
+
+        self.convert = convert
         self.node, self.rate = node, rate
         self.lock = threading.Lock()
         self.received: dict[int, tuple[float, np.ndarray, bool]] = {}
@@ -153,10 +156,8 @@ class Listener:
         part.create_subscription(DiagnosticArray, "/diagnostics", self.on_diag, reliable)
 
     def on_odom(self, msg) -> None:
-        from line_odom import convert
-
         now = time.monotonic()
-        k = int(round((convert.stamp_to_sec(msg.header.stamp) - STAMP0) * self.rate))
+        k = int(round((self.convert.stamp_to_sec(msg.header.stamp) - STAMP0) * self.rate))
         values = np.r_[[msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z,
                         msg.pose.pose.orientation.x, msg.pose.pose.orientation.y, msg.pose.pose.orientation.z,
                         msg.pose.pose.orientation.w], msg.pose.covariance, msg.twist.covariance,
@@ -185,6 +186,11 @@ class Schedule:
     whose sweep they cover; counts late ticks and samples, samples the node's RSS."""
 
     def __init__(self, args: argparse.Namespace, node: NodeProcess, pub, imu_pub, drive: Drive):
+        from sensor_msgs.msg import Imu
+
+        from line_odom import convert
+
+        self.imu_type, self.convert = Imu, convert
         self.args, self.node, self.pub, self.imu_pub, self.drive = args, node, pub, imu_pub, drive
         self.period = 1.0 / args.rate
         self.published: dict[int, float] = {}
@@ -196,10 +202,6 @@ class Schedule:
     def send_imu_until(self, stamp: float, scan_due: float) -> None:
         """The gyro samples stamped up to `stamp`, each at its own time: scan_due (when the scan stamped one period
         before `stamp` goes out) less the sample's lead on `stamp`."""
-        from sensor_msgs.msg import Imu
-
-        from line_odom import convert
-
         stamps, rates = self.drive.gyro_stamps, self.drive.gyro_rates
         while self.imu_sent < len(stamps) and stamps[self.imu_sent] <= stamp + 1e-9:
             due = scan_due - (stamp - stamps[self.imu_sent])
@@ -208,8 +210,8 @@ class Schedule:
                 time.sleep(due - now)
             elif now - due > self.period:
                 self.late_imu += 1
-            sample = Imu()
-            sample.header.stamp = convert.sec_to_stamp(float(stamps[self.imu_sent]))
+            sample = self.imu_type()
+            sample.header.stamp = self.convert.sec_to_stamp(float(stamps[self.imu_sent]))
             sample.header.frame_id = "velodyne"
             (sample.angular_velocity.x, sample.angular_velocity.y,
              sample.angular_velocity.z) = (float(v) for v in rates[self.imu_sent])

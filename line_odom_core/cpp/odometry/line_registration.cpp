@@ -122,6 +122,7 @@ bool LineRegistration::within_reach(const RigidTransform& prediction, const Rigi
 // The state the passes of one registration carry from pass to pass: the last pass's candidates, the estimate kept so
 // far and the refined guess of the last pass.
 struct LineRegistration::Passes {
+  RefineOptions ropt;
   CandidateOptions copt;
   Correspondences corr;
   LinePairTable table;  // corr's line pairs, for the pass and the checks after the last one
@@ -141,6 +142,7 @@ PassOutcome LineRegistration::register_features(const ScanFeatures& prev, const 
                                                 bool limit_pairs, const RegistrationFrame& frame,
                                                 FrameStats* st) const {
   Passes passes;
+  passes.ropt = refine_options();
   passes.best = start;
   passes.copt = config_->candidates;
   if (!limit_pairs) passes.copt.max_pairs_per_line = config_->registration.first_motion_pairs_per_line;
@@ -166,7 +168,7 @@ void LineRegistration::run_pass(int pass, CandidateIndex& prev_index, const Scan
                                 const RigidTransform& prediction, bool limit_pairs, const RegistrationFrame& frame,
                                 Passes* s, FrameStats* st) const {
   const RegistrationOptions& reg = config_->registration;
-  const RefineOptions ropt = refine_options();
+  const RefineOptions& ropt = s->ropt;
   Stopwatch stage;
   build_candidates(prev_index, cur, s->best, s->copt, &s->corr, &s->cstats, pool_);
   st->ms.candidates += stage.ms();
@@ -290,8 +292,7 @@ void LineRegistration::hold_unobserved(const RigidTransform& prediction, const R
   int inliers = 0;
   for (int round = 0; partial_from && round < 2; ++round) {
     RefineResult partial;
-    if (!refine_motion_partial(s->corr, s->table, *partial_from, prediction, axes, lock_weak, refine_options(),
-                               &partial) ||
+    if (!refine_motion_partial(s->corr, s->table, *partial_from, prediction, axes, lock_weak, s->ropt, &partial) ||
         !within_reach(prediction, partial.T) || partial.degenerate || partial.line_inliers < reg.min_inliers ||
         too_few_pairs_meet(s->corr, s->table, partial.T, &inliers))
       break;
