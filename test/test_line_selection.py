@@ -43,8 +43,8 @@ def test_later_scans_fit_only_the_rows_and_columns_they_keep():
         # exactly the lines a full fit has on rows and columns 0, 4, 8, ...: each scan is fitted on its own
         image = line_odom_core.organize_points(data.xyz(i), sensor="hdl64", min_range=2.5, max_range=120.0)
         everything = line_odom_core.extract_features(image["points"], preset="kitti")
+        # (what this saves in time is bench/latency.py's to show: a time compared here fails on a loaded machine)
         assert stats[i]["h_lines"] + stats[i]["v_lines"] == stats[i]["registered_lines"] == kept(everything, 4)
-        assert stats[i]["ms"]["lines"] < stats[0]["ms"]["lines"]
 
 
 def test_no_budget_registers_every_line(kitti_frame):
