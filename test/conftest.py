@@ -8,6 +8,9 @@ sys.executable: the ROS wheels' bootstrapper has already set LD_LIBRARY_PATH for
 from __future__ import annotations
 
 import os
+import shutil
+import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -105,3 +108,24 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         for name in FILE_MARKERS.get(Path(str(item.fspath)).name, ()):
             item.add_marker(getattr(pytest.mark, name))
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    # The colcon build of test_package_build.py starts now, in the background, when the session runs that file; while
+    # other tests run beside it, it compiles on one core.
+    in_build_file = [Path(str(item.fspath)).name == "test_package_build.py" for item in session.items]
+    if session.config.option.collectonly or not any(in_build_file):
+        return
+    package_build = sys.modules["test_package_build"]
+    if not (Path(sys.executable).parent / "colcon").is_file():
+        return  # the fixture reports it
+    ws = Path(tempfile.mkdtemp(prefix="line_odom_colcon_ws_"))
+    session.config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild(ws, 2 if all(in_build_file) else 1)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    package_build = sys.modules.get("test_package_build")
+    build = session.config.stash.get(package_build.COLCON_BUILD, None) if package_build else None
+    if build is not None:
+        build.stop()  # a run stopped early (-x, Ctrl-C) leaves no compiler behind
+        shutil.rmtree(build.ws, ignore_errors=True)

@@ -63,24 +63,54 @@ def sourced_environment(setup_sh: Path, base_env: dict[str, str]) -> dict[str, s
     return dict(item.split("=", 1) for item in proc.stdout.decode().split("\0") if "=" in item)
 
 
+class ColconBuild:
+    """`colcon build` of a copy of the checkout in a fresh workspace, running in the background: conftest.py starts it
+    when the session collects this file, so the engine compiles on one core while the other tests run (the build is
+    the suite's longest step); the workspace fixture waits for it."""
+
+    def __init__(self, ws: Path, compile_jobs: int = 2):
+        self.ws = ws
+        copy_package_source(ws / "src" / PACKAGE)
+        self.env = dict(os.environ)
+        self.env["COLCON_HOME"] = str(ws / ".colcon")  # no user defaults / mixins
+        self.env.pop("AMENT_PREFIX_PATH", None)
+        self.env.pop("COLCON_PREFIX_PATH", None)
+        build_env = dict(self.env, LINE_ODOM_BUILD_JOBS=str(compile_jobs))
+        self.log_path = ws / "colcon_build.log"
+        self.start = time.monotonic()
+        with open(self.log_path, "w") as log:
+            self.proc = subprocess.Popen([str(Path(sys.executable).parent / "colcon"), "build", "--base-paths", "src",
+                                          "--event-handlers", "console_direct+"],
+                                         cwd=ws, env=build_env, stdout=log, stderr=subprocess.STDOUT,
+                                         stdin=subprocess.DEVNULL, start_new_session=True)
+
+    def finish(self) -> tuple[int, str]:
+        """The build's exit code and output, waiting for it up to BUILD_TIMEOUT_S from its start."""
+        try:
+            code = self.proc.wait(timeout=max(1.0, BUILD_TIMEOUT_S - (time.monotonic() - self.start)))
+        except subprocess.TimeoutExpired:
+            self.stop()
+            code = -1
+        return code, self.log_path.read_text()
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+
+
+COLCON_BUILD = pytest.StashKey[ColconBuild]()
+
+
 @pytest.fixture(scope="module")
-def workspace(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
+def workspace(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Workspace:
     colcon = Path(sys.executable).parent / "colcon"
     assert colcon.is_file(), "colcon is not installed in this environment: run `make setup`"
-    ws = tmp_path_factory.mktemp("colcon_ws")
-    copy_package_source(ws / "src" / PACKAGE)
-
-    env = dict(os.environ)
-    env["COLCON_HOME"] = str(ws / ".colcon")  # no user defaults / mixins
-    env.pop("AMENT_PREFIX_PATH", None)
-    env.pop("COLCON_PREFIX_PATH", None)
-    start = time.monotonic()
-    proc = subprocess.run([str(colcon), "build", "--base-paths", "src", "--event-handlers", "console_direct+"],
-                          cwd=ws, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                          timeout=BUILD_TIMEOUT_S, stdin=subprocess.DEVNULL)
-    log = proc.stdout
-    assert proc.returncode == 0, f"colcon build failed after {time.monotonic() - start:.0f} s:\n{log[-6000:]}"
+    build = request.config.stash.get(COLCON_BUILD, None) or ColconBuild(tmp_path_factory.mktemp("colcon_ws"))
+    code, log = build.finish()
+    assert code == 0, f"colcon build failed (exit {code}) after {time.monotonic() - build.start:.0f} s:\n{log[-6000:]}"
     assert re.search(rf"^Finished <<< {PACKAGE} ", log, re.MULTILINE), log[-3000:]
+    ws, env = build.ws, build.env
 
     install = ws / "install"
     run_env = sourced_environment(install / "setup.sh", env)
