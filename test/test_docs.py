@@ -3,6 +3,8 @@ no lab-notebook references ("session 12", "issue 4") or dated measurements sit i
 docs/RESULTS.md, whose tables carry their dates in provenance lines, and the README stays short with its sections."""
 from __future__ import annotations
 
+import functools
+import os
 import re
 import subprocess
 from pathlib import Path
@@ -61,8 +63,19 @@ def _exists(rooted: str) -> bool:
     return any(ROOT.glob(rooted)) if "*" in rooted else (ROOT / rooted).exists()
 
 
+@functools.lru_cache(maxsize=1)
+def _file_names() -> frozenset[str]:
+    """The names of the files under the root outside build and cache directories (pruned while walking: .venv alone
+    holds tens of thousands)."""
+    names = set()
+    for _, dirnames, filenames in os.walk(ROOT):
+        dirnames[:] = [d for d in dirnames if d not in SKIP_DIRS]
+        names.update(filenames)
+    return frozenset(names)
+
+
 def _found_anywhere(name: str) -> bool:
-    return any(not SKIP_DIRS.intersection(p.relative_to(ROOT).parts) for p in ROOT.rglob(name))
+    return name in _file_names()
 
 
 @pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.name)
