@@ -130,7 +130,7 @@ headers_fp="$(fingerprint setup.py "${engine_headers[@]}")"
 engine_fp="$(fingerprint setup.py "${engine_headers[@]}" "${engine_sources[@]}")"
 ext_present() { compgen -G "line_odom_core/_core.cpython-*.so" >/dev/null && compgen -G "line_odom_core/_testing.cpython-*.so" >/dev/null; }
 if ! stamp_ok package "$pkg_fp" || ! (cd / && "$PY" -c 'import line_odom' >/dev/null 2>&1); then
-    say "installing line_odom (editable) and building the C++ engine (about a minute)"
+    say "installing line_odom (editable) and building the C++ engine (a few minutes)"
     pip_quiet install --no-build-isolation --no-deps -e "$ROOT" || die "pip install -e . failed"
     stamp_set package "$pkg_fp"
     stamp_set headers "$headers_fp"
