@@ -117,7 +117,7 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     if session.config.option.collectonly or not any(in_build_file):
         return
     package_build = sys.modules["test_package_build"]
-    if not (Path(sys.executable).parent / "colcon").is_file():
+    if not package_build.COLCON.is_file():
         return  # the fixture reports it
     ws = Path(tempfile.mkdtemp(prefix="line_odom_colcon_ws_"))
     session.config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild(ws, 2 if all(in_build_file) else 1)

@@ -22,6 +22,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "line_odom"
 BUILD_TIMEOUT_S = 1200
+COLCON = Path(sys.executable).parent / "colcon"  # installed into the environment by `make setup`
 # outside a git checkout: the tree minus the artefacts of a development set-up
 NOT_SOURCE = shutil.ignore_patterns(".git", ".venv", "build", "install", "log", "__pycache__", "*.so", "*.o",
                                     "*.egg-info", ".pytest_cache", ".hypothesis", "out", "_deps", "demo_out")
@@ -79,8 +80,8 @@ class ColconBuild:
         self.log_path = ws / "colcon_build.log"
         self.start = time.monotonic()
         with open(self.log_path, "w") as log:
-            self.proc = subprocess.Popen([str(Path(sys.executable).parent / "colcon"), "build", "--base-paths", "src",
-                                          "--event-handlers", "console_direct+"],
+            self.proc = subprocess.Popen([str(COLCON), "build", "--base-paths", "src", "--event-handlers",
+                                          "console_direct+"],
                                          cwd=ws, env=build_env, stdout=log, stderr=subprocess.STDOUT,
                                          stdin=subprocess.DEVNULL, start_new_session=True)
 
@@ -104,8 +105,7 @@ COLCON_BUILD = pytest.StashKey[ColconBuild]()
 
 @pytest.fixture(scope="module")
 def workspace(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Workspace:
-    colcon = Path(sys.executable).parent / "colcon"
-    assert colcon.is_file(), "colcon is not installed in this environment: run `make setup`"
+    assert COLCON.is_file(), "colcon is not installed in this environment: run `make setup`"
     build = request.config.stash.get(COLCON_BUILD, None) or ColconBuild(tmp_path_factory.mktemp("colcon_ws"))
     code, log = build.finish()
     assert code == 0, f"colcon build failed (exit {code}) after {time.monotonic() - build.start:.0f} s:\n{log[-6000:]}"
