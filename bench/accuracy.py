@@ -244,6 +244,7 @@ class Playback:
     stride: int = 1
     start: int = 0
     backwards: bool = False
+    mount: tuple[float, float, float] | None = None  # roll, pitch, yaw (deg) of the sensor turned on its mount
 
     def apply(self, data):
         data = data.played_backwards() if self.backwards else data
@@ -252,7 +253,35 @@ class Playback:
 
     def suffix(self) -> str:
         return ((" backwards" if self.backwards else "") + (f" from {self.start}" if self.start else "") +
-                (f" x{self.stride}" if self.stride > 1 else ""))
+                (f" x{self.stride}" if self.stride > 1 else "") +
+                (" mount {:g}/{:g}/{:g}".format(*self.mount) if self.mount else ""))
+
+    def mount_transform(self) -> np.ndarray | None:
+        """The 4x4 rotation M taking the scans' frame to the turned sensor's: points p -> R p, a motion D -> M D M^T."""
+        if not self.mount:
+            return None
+        from scipy.spatial.transform import Rotation
+
+        m = np.eye(4)
+        m[:3, :3] = Rotation.from_euler("xyz", self.mount, degrees=True).as_matrix()
+        return m
+
+
+def mounted_scan(data, i: int, beams: int, mount: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Scan i as run_kitti feeds it: `beams` of its lasers (0: all), turned by `mount` (mount_transform). A turned scan
+    comes with its rings (from the file's order): a sensor's rows are fixed to it, not to the scene's elevation angles."""
+    if beams:
+        xyz, ring = kitti_beams(data, i, beams)
+    elif mount is not None:
+        from line_odom.bags import kitti_rings
+
+        points = data.points(i)
+        xyz, ring = np.ascontiguousarray(points[:, :3], dtype=np.float64), kitti_rings(points).astype(np.int32)
+    else:
+        return data.xyz(i), None
+    if mount is not None:
+        xyz = np.ascontiguousarray(xyz @ mount[:3, :3].T)
+    return xyz, ring
 
 
 def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: dict, beams: int = 0,
@@ -276,15 +305,16 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     kiss_odom = kiss_odometry(100.0) if kiss else None
     genz_run = Run([], [], []) if kiss and genz_available() else None
     genz_odom = genz_odometry(100.0) if genz_run else None
+    mount = playback.mount_transform()
     for i in range(len(data)):
-        xyz, ring = kitti_beams(data, i, beams) if beams else (data.xyz(i), None)
+        xyz, ring = mounted_scan(data, i, beams, mount)
         t0 = time.perf_counter()
         result = odom.register_points(xyz, float(data.times[i]), ring=ring)
         lo.ms.append((time.perf_counter() - t0) * 1e3)
         lo.poses.append(result.pose)
         lo.stats.append(result.stats)
         if kiss_odom is not None:
-            pts = odom.downsampled_points(xyz) if level > 1 else xyz.astype(np.float64)
+            pts = odom.downsampled_points(xyz, ring=ring) if level > 1 else xyz.astype(np.float64)
             t0 = time.perf_counter()
             kiss_odom.register_frame(pts, np.zeros(len(pts)))
             kiss_run.ms.append((time.perf_counter() - t0) * 1e3)
@@ -296,10 +326,13 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
                 genz_run.poses.append(peer_pose(genz_odom))
     judged = run_name(seq) in GT_DISAGREES and data.poses is not None
 
+    def mounted(poses: np.ndarray) -> np.ndarray:  # the scans' poses as the turned sensor's
+        return poses if mount is None or poses is None else np.array([mount @ p @ mount.T for p in poses])
+
     def errors(poses):
-        t, r = frame_errors(np.array(poses), data.poses)
+        t, r = frame_errors(np.array(poses), mounted(data.poses))
         if judged:  # translation against the scans' own motion, rotation against the ground truth
-            t = frame_errors(np.array(poses), dense_reference(label, data))[0]
+            t = frame_errors(np.array(poses), mounted(dense_reference(label, data)))[0]
         return t, r
 
     lo_frames = errors(lo.poses)
@@ -310,7 +343,7 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
               sum(s["degenerate"] for s in lo.stats), beams, lo_frames, kiss_frames)
     row.genz = summary(genz_frames) if genz_frames else None
     row.genz_ms = steady_ms(genz_run.ms) if genz_run else None
-    reference = dense_reference(label, data) if judged else data.poses
+    reference = mounted(dense_reference(label, data) if judged else data.poses)
     row.motion = float(np.mean(frame_motions(reference)))
     row.flagged, row.gross = flagged_and_gross(lo.stats, lo_frames[0], reference)
     row.dense_reference = judged
@@ -718,6 +751,10 @@ def main(argv=None) -> int:
     parser.add_argument("--kitti-backwards", action="store_true",
                         help="each run played backwards from its end, each interval kept: stops become starts, "
                              "braking becomes accelerating (rows named '<run> backwards')")
+    parser.add_argument("--kitti-mount", nargs=3, type=float, metavar=("ROLL", "PITCH", "YAW"),
+                        help="every scan turned as a sensor turned on its mount by these angles (deg, about x, y, z), "
+                             "its rings from the file's order, the poses judged in the turned frame (rows named "
+                             "'<run> mount R/P/Y'): a tilted sensor, and other samplings of the same scenes")
     parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16, 32], choices=(8, 16, 32),
                         help="also KITTI kept to this many of its 64 lasers (every 4th for 16), every azimuth step, "
                              "with the vlp16 preset: a real 16-beam-like scan (none: skip)")
@@ -754,7 +791,8 @@ def main(argv=None) -> int:
         parser.error(f"--kitti-stride {args.kitti_stride}: expected a whole number of scans >= 1")
     if args.kitti_start < 0:
         parser.error(f"--kitti-start {args.kitti_start}: expected a scan index >= 0")
-    playback = Playback(args.kitti_stride, args.kitti_start, args.kitti_backwards)
+    playback = Playback(args.kitti_stride, args.kitti_start, args.kitti_backwards,
+                        tuple(args.kitti_mount) if args.kitti_mount else None)
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; "
           f"KISS-ICP {'on' if kiss else 'off'} (deskew off, voxel = max_range / 100)")
     rows: list[Row] = []
