@@ -13,6 +13,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-stride 2   # every 2nd scan: each scan moves twice as far
     .venv/bin/python bench/accuracy.py --only kitti --kitti-backwards  # each run backwards: stops become starts
     .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from scan 3 (from 0): mid-drive
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-mount 10 15 0   # a sensor tilted 10 deg in roll, 15 in pitch
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
