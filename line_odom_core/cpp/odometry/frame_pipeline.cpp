@@ -207,6 +207,7 @@ Validated Odometry::validate(FrameFeatures* scan, const FrameInputs& in,
   check.guessed = in.guessed;
   check.rotation_guessed = in.rotation_guessed;
   if (aligned_before.has_value()) check.aligned_before = &*aligned_before;
+  check.held_travel = &state_.held_travel;
   check.registration = in.registration;
   return MotionValidation(lines_).validate(check, state_.point_map, outcome, st);
 }
@@ -271,6 +272,8 @@ void Odometry::advance(const FrameFeatures& scan, const Plane* ground, const Fra
   s.prediction.record(result->delta, fused.held_projector, st.registered, in.dt, in.first_motion, in.guessed,
                       in.rotation_guessed, reg.constant_velocity, validated.measured_velocity);
   st.unmeasured_directions = static_cast<int>(std::lround(s.prediction.unmeasured_projector().trace()));
+  if (validated.travel_held) s.held_travel.record(validated.points_travel);
+  else s.held_travel.forget();
   // The trend of the sweeps' velocity is taken from measured velocities only: a flagged frame's motion (a direction
   // held or left open) would bend the next sweeps by its error, and their registrations would bend back further.
   if (reported_good) s.sweeps.record_motion(result->delta, in.dt);

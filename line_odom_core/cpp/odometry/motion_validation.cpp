@@ -22,6 +22,8 @@ constexpr const char* kAxisNames[6] = {"x", "y", "z", "rx", "ry", "rz"};
 constexpr int kAllAxes = 0x3f;
 constexpr int kTranslationAxes = 0x07;  // x, y, z
 constexpr int kRotationAxes = 0x38;     // rx, ry, rz
+// A held subspace holds the travel when it holds this much of its direction (within 26 deg).
+constexpr double kHeldTravelCosine = 0.9;
 
 int count_axes(int axes) { return static_cast<int>(std::bitset<6>(static_cast<unsigned>(axes)).count()); }
 
@@ -492,7 +494,8 @@ void MotionValidation::hold_at_the_map(const ValidationFrame& frame, const Rigid
   step.head<3>() = unmeasured * moved + (Mat3::Identity() - unmeasured) * side * side.dot(moved);
   const bool measured = (unmeasured * moved).norm() > 0.0;
   const bool sided = !side.isZero();
-  if ((resolved & kRotationAxes) != 0 || measured || sided) {
+  const bool travelled = held_travel(frame, *outcome, by_points, points_covariance, tolerance, &step, out);
+  if ((resolved & kRotationAxes) != 0 || measured || sided || travelled) {
     const RigidTransform turned = apply_motion_difference(step, frame.prediction);
     const Mat6 projector = sided ? widened(outcome->held_projector, shift_along(side)) : outcome->held_projector;
     if (lines_.hold_directions(held_corr, LinePairTable(held_corr), turned, 0, &projector, outcome)) {
@@ -501,11 +504,34 @@ void MotionValidation::hold_at_the_map(const ValidationFrame& frame, const Rigid
                                                             : "";
       if (sided) held += held.empty() ? "the side of the travel held at the point map's alignment"
                                       : ", and the side of the travel";
+      if (travelled)
+        held += std::string(held.empty() ? "" : ", and ") +
+                "the travel the frames before held taken from the point map's alignments since";
       outcome->failure += std::string(outcome->failure.empty() ? "" : ": ") + held;
       out->reference = turned;
       out->measured_velocity = measured;
     }
   }
+}
+
+bool MotionValidation::held_travel(const ValidationFrame& frame, const PassOutcome& outcome,
+                                   const RigidTransform& by_points, const Mat6& points_covariance, double tolerance,
+                                   Vec6* step, Validated* out) const {
+  const double resolution = tolerance / 3.0;  // as resolved_axes
+  const Vec3& travel = frame.prediction.t;
+  if (frame.held_travel == nullptr || !(travel.norm() > resolution)) return false;
+  const Vec3 along = travel.normalized();
+  if ((outcome.held_projector.topLeftCorner<3, 3>() * along).norm() < kHeldTravelCosine) return false;
+  const double points_sd = std::sqrt(std::max(0.0, along.dot(points_covariance.topLeftCorner<3, 3>() * along)));
+  if (!(points_sd < resolution)) return false;
+  out->travel_held = true;
+  out->points_travel = along.dot(by_points.t);
+  double mean = 0.0;
+  if (!frame.held_travel->contradicted(out->points_travel, travel.norm(), resolution,
+                                       lines_.config().validation.significance, &mean))
+    return false;
+  step->head<3>() += along * (mean - along.dot(apply_motion_difference(*step, frame.prediction).t));
+  return true;
 }
 
 Vec3 MotionValidation::held_side(const ValidationFrame& frame, const PassOutcome& outcome,

@@ -12,6 +12,7 @@
 
 #include <vector>
 
+#include "odometry/held_travel.hpp"
 #include "odometry/line_registration.hpp"
 #include "odometry/point_map_tracker.hpp"
 
@@ -36,6 +37,7 @@ struct ValidationFrame {
   bool guessed = false;       // the prediction is a caller's measurement: open directions are held at it
   bool rotation_guessed = false;  // the prediction's rotation is a gyro's measurement
   const MapAlignment* aligned_before = nullptr;  // nullable: this frame's alignment, made before the lines
+  const HeldTravel* held_travel = nullptr;  // nullable: the travel the frames before held, and their points'
   RegistrationFrame registration;
 };
 
@@ -47,6 +49,10 @@ struct Validated {
   bool held_at_points = false;
   // The translations of the velocity no frame measured were taken from the point map's alignment: measured now.
   bool measured_velocity = false;
+  // The frame held its travel (the prediction's direction), at the prediction or at the points' mean over the frames
+  // holding it, and the points resolved it there: their travel (m), for HeldTravel::record.
+  bool travel_held = false;
+  double points_travel = 0.0;
   // Where the map judged this frame: the points' motion from the previous scan's place and the axes along which they
   // resolve it (a third of the tolerance).
   bool judged = false;
@@ -104,6 +110,11 @@ class MotionValidation {
   // velocity's unmeasured translations and the side of the travel (held_side) too, where the points resolve them.
   void hold_at_the_map(const ValidationFrame& frame, const RigidTransform& by_points, const Mat6& points_covariance,
                        PassOutcome* outcome, Validated* out) const;
+  // Whether the travel (the prediction's direction) the frame holds at the prediction is contradicted by the points'
+  // travel over the frames holding it (HeldTravel, frame.held_travel): then *step (motion_difference at the
+  // prediction) moves the travel to their mean. Fills out->travel_held and points_travel.
+  bool held_travel(const ValidationFrame& frame, const PassOutcome& outcome, const RigidTransform& by_points,
+                   const Mat6& points_covariance, double tolerance, Vec6* step, Validated* out) const;
   // The side of the travel (unit) where holding the lines' weak directions at the prediction would pass on more of
   // its error there than the points' own variance; else zero.
   Vec3 held_side(const ValidationFrame& frame, const PassOutcome& outcome, const Mat6& points_covariance,

@@ -43,6 +43,7 @@ struct OdometryState {
   ScanHistory scans;
   SweepCorrection sweeps;
   PointMapTracker point_map;
+  HeldTravel held_travel;  // the travel the last frames held, and their points' (motion_validation.hpp)
 
   explicit OdometryState(const OdometryConfig& config)
       : prediction(config.registration.persistence_window),
