@@ -29,17 +29,19 @@ def sixteen_lasers(data: KittiSequence, i: int) -> tuple[np.ndarray, np.ndarray]
     return np.ascontiguousarray(points[keep, :3], dtype=np.float64), (ring[keep] // 4).astype(np.int32)
 
 
+def level_config(level: str, overrides: dict):
+    """The preset of `level`: "full", "1/36", "1/64" (kitti_hdl64) or "16 lasers" (vlp16 on KITTI's every 4th laser)."""
+    if level == "16 lasers":
+        return line_odom_core.load_config("vlp16", {"sensor.model": "uniform", "sensor.rows": 16,
+                                                    "sensor.max_elevation_deg": 2.0, "sensor.min_elevation_deg": -24.9,
+                                                    **overrides})
+    return line_odom_core.load_config("kitti_hdl64", {"downsample": {"full": 1, "1/36": 6, "1/64": 8}[level],
+                                                      **overrides})
+
+
 def run(data: KittiSequence, level: str, overrides: dict | None = None):
     """Poses, stats and frame-to-frame errors (m) at `level`: "full", "1/36", "1/64" or "16 lasers"."""
-    overrides = overrides or {}
-    if level == "16 lasers":
-        config = line_odom_core.load_config("vlp16", {"sensor.model": "uniform", "sensor.rows": 16,
-                                                      "sensor.max_elevation_deg": 2.0,
-                                                      "sensor.min_elevation_deg": -24.9, **overrides})
-    else:
-        step = {"full": 1, "1/36": 6, "1/64": 8}[level]
-        config = line_odom_core.load_config("kitti_hdl64", {"downsample": step, **overrides})
-    odom = line_odom_core.Odometry(config)
+    odom = line_odom_core.Odometry(level_config(level, overrides or {}))
     results = []
     for i in range(len(data)):
         xyz, ring = sixteen_lasers(data, i) if level == "16 lasers" else (data.xyz(i), None)
@@ -433,13 +435,7 @@ TILTED_MOUNT = Rotation.from_euler("xyz", [10.0, 15.0, 0.0], degrees=True).as_ma
 def run_turned(data: KittiSequence, level: str, mount: np.ndarray):
     """run() with every scan turned by `mount` (3x3) as on a sensor turned on its mount, its rings as the sensor gives
     them; the errors against the poses in the turned frame. Also sets data.poses to those."""
-    if level == "16 lasers":
-        config = line_odom_core.load_config("vlp16", {"sensor.model": "uniform", "sensor.rows": 16,
-                                                      "sensor.max_elevation_deg": 2.0,
-                                                      "sensor.min_elevation_deg": -24.9})
-    else:
-        config = line_odom_core.load_config("kitti_hdl64", {"downsample": {"1/36": 6, "1/64": 8}[level]})
-    odom = line_odom_core.Odometry(config)
+    odom = line_odom_core.Odometry(level_config(level, {}))
     results = []
     for i in range(len(data)):
         if level == "16 lasers":
