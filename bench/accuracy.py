@@ -271,15 +271,9 @@ class Playback:
 def mounted_scan(data, i: int, beams: int, mount: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
     """Scan i as run_kitti feeds it: `beams` of its lasers (0: all), turned by `mount` (mount_transform). A turned scan
     comes with its rings (from the file's order): a sensor's rows are fixed to it, not to the scene's elevation angles."""
-    if beams:
-        xyz, ring = kitti_beams(data, i, beams)
-    elif mount is not None:
-        from line_odom.bags import kitti_rings
-
-        points = data.points(i)
-        xyz, ring = np.ascontiguousarray(points[:, :3], dtype=np.float64), kitti_rings(points).astype(np.int32)
-    else:
+    if not beams and mount is None:
         return data.xyz(i), None
+    xyz, ring = kitti_beams(data, i, beams or 64)
     if mount is not None:
         xyz = np.ascontiguousarray(xyz @ mount[:3, :3].T)
     return xyz, ring
@@ -330,10 +324,13 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     def mounted(poses: np.ndarray) -> np.ndarray:  # the scans' poses as the turned sensor's
         return poses if mount is None or poses is None else np.array([mount @ p @ mount.T for p in poses])
 
+    ground_truth = mounted(data.poses)
+    dense = mounted(dense_reference(label, data)) if judged else None
+
     def errors(poses):
-        t, r = frame_errors(np.array(poses), mounted(data.poses))
+        t, r = frame_errors(np.array(poses), ground_truth)
         if judged:  # translation against the scans' own motion, rotation against the ground truth
-            t = frame_errors(np.array(poses), mounted(dense_reference(label, data)))[0]
+            t = frame_errors(np.array(poses), dense)[0]
         return t, r
 
     lo_frames = errors(lo.poses)
@@ -344,7 +341,7 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
               sum(s["degenerate"] for s in lo.stats), beams, lo_frames, kiss_frames)
     row.genz = summary(genz_frames) if genz_frames else None
     row.genz_ms = steady_ms(genz_run.ms) if genz_run else None
-    reference = mounted(dense_reference(label, data) if judged else data.poses)
+    reference = dense if judged else ground_truth
     row.motion = float(np.mean(frame_motions(reference)))
     row.flagged, row.gross = flagged_and_gross(lo.stats, lo_frames[0], reference)
     row.dense_reference = judged

@@ -22,11 +22,16 @@ def stop_and_go(frames: int | None = None) -> KittiSequence:
     return data
 
 
-def sixteen_lasers(data: KittiSequence, i: int) -> tuple[np.ndarray, np.ndarray]:
+def every_kth_laser(data: KittiSequence, i: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Scan i kept to every k-th of its lasers, with their rings."""
     points = data.points(i)
     ring = kitti_rings(points)
-    keep = ring % 4 == 0
-    return np.ascontiguousarray(points[keep, :3], dtype=np.float64), (ring[keep] // 4).astype(np.int32)
+    keep = ring % k == 0
+    return np.ascontiguousarray(points[keep, :3], dtype=np.float64), (ring[keep] // k).astype(np.int32)
+
+
+def sixteen_lasers(data: KittiSequence, i: int) -> tuple[np.ndarray, np.ndarray]:
+    return every_kth_laser(data, i, 4)
 
 
 def level_config(level: str, overrides: dict):
@@ -438,11 +443,7 @@ def run_turned(data: KittiSequence, level: str, mount: np.ndarray):
     odom = line_odom_core.Odometry(level_config(level, {}))
     results = []
     for i in range(len(data)):
-        if level == "16 lasers":
-            xyz, ring = sixteen_lasers(data, i)
-        else:
-            points = data.points(i)
-            xyz, ring = points[:, :3].astype(np.float64), kitti_rings(points).astype(np.int32)
+        xyz, ring = every_kth_laser(data, i, 4 if level == "16 lasers" else 1)
         results.append(odom.register_points(np.ascontiguousarray(xyz @ mount.T), float(data.times[i]), ring=ring))
     turned = np.eye(4)
     turned[:3, :3] = mount
