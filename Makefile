@@ -13,8 +13,9 @@ setup:
 demo: setup
 	$(VENV_PYTHON) -m line_odom demo
 
+# one pytest-xdist worker per core, a test file's tests on one worker (its module fixtures are built once)
 test: setup
-	$(VENV_PYTHON) -m pytest -q --durations=10 test $(PYTEST_ARGS)
+	$(VENV_PYTHON) -m pytest -q --durations=10 -n auto --dist loadfile test $(PYTEST_ARGS)
 
 # removes what setup and builds created inside the checkout (not ../shared)
 clean:

@@ -81,8 +81,13 @@ FILE_MARKERS: dict[str, tuple[str, ...]] = {
 }
 
 # 1..100: Fast DDS derives UDP ports from the domain id (7400 + 250 * id + ...); ids above ~100 reach
-# the ephemeral port range on Linux.
-ROS_DOMAIN_ID = str(1 + os.getpid() % 100)
+# the ephemeral port range on Linux. The workers of one pytest-xdist session (`make test`) take consecutive ids from
+# their controller's process id, so that no two of them share a domain.
+XDIST_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if XDIST_WORKER.startswith("gw"):
+    ROS_DOMAIN_ID = str(1 + (os.getppid() + int(XDIST_WORKER[2:])) % 100)
+else:
+    ROS_DOMAIN_ID = str(1 + os.getpid() % 100)
 
 
 @pytest.fixture
@@ -110,22 +115,61 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(getattr(pytest.mark, name))
 
 
-def pytest_collection_finish(session: pytest.Session) -> None:
-    # The colcon build of test_package_build.py starts now, in the background, when the session runs that file; while
-    # other tests run beside it, it compiles on one core.
-    in_build_file = [Path(str(item.fspath)).name == "test_package_build.py" for item in session.items]
-    if session.config.option.collectonly or not any(in_build_file):
+# The colcon build of test_package_build.py starts as soon as the session knows it runs that file, in the background,
+# so that it compiles on one core while other tests run: in a plain session when it has collected, under pytest-xdist
+# in the controller when the first worker has collected (a worker that runs the file waits for that build).
+COLCON_WS = "line_odom_colcon_ws"
+
+
+def start_colcon_build(config: pytest.Config, test_files: list[str], ws: Path | None = None) -> None:
+    in_build_file = [Path(f).name == "test_package_build.py" for f in test_files]
+    if config.option.collectonly or not any(in_build_file):
         return
-    package_build = sys.modules["test_package_build"]
+    import test_package_build as package_build
+
     if not package_build.COLCON.is_file():
         return  # the fixture reports it
-    ws = Path(tempfile.mkdtemp(prefix="line_odom_colcon_ws_"))
-    session.config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild(ws, 2 if all(in_build_file) else 1)
+    ws = ws or Path(tempfile.mkdtemp(prefix="line_odom_colcon_ws_"))
+    config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild(ws, 2 if all(in_build_file) else 1)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    files = [str(item.fspath) for item in session.items]
+    worker_input = getattr(session.config, "workerinput", None)
+    if worker_input is None:
+        start_colcon_build(session.config, files)
+    elif COLCON_WS in worker_input and any(Path(f).name == "test_package_build.py" for f in files):
+        import test_package_build as package_build
+
+        session.config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild.attach(
+            Path(worker_input[COLCON_WS]))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    ws = node.config.stash.get(COLCON_WS_PATH, None)
+    if ws is None:
+        ws = node.config.stash[COLCON_WS_PATH] = Path(tempfile.mkdtemp(prefix="line_odom_colcon_ws_"))
+    node.workerinput[COLCON_WS] = str(ws)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node, ids: list[str]) -> None:
+    import test_package_build as package_build
+
+    if package_build.COLCON_BUILD not in node.config.stash:
+        start_colcon_build(node.config, [i.split("::")[0] for i in ids], node.config.stash[COLCON_WS_PATH])
+
+
+COLCON_WS_PATH = pytest.StashKey[Path]()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
     package_build = sys.modules.get("test_package_build")
     build = session.config.stash.get(package_build.COLCON_BUILD, None) if package_build else None
-    if build is not None:
+    if build is not None and build.proc is not None:  # the process that started it (a worker only waited for it)
         build.stop()  # a run stopped early (-x, Ctrl-C) leaves no compiler behind
         shutil.rmtree(build.ws, ignore_errors=True)
+    ws = session.config.stash.get(COLCON_WS_PATH, None)
+    if ws is not None:
+        shutil.rmtree(ws, ignore_errors=True)

@@ -67,37 +67,67 @@ def sourced_environment(setup_sh: Path, base_env: dict[str, str]) -> dict[str, s
 class ColconBuild:
     """`colcon build` of a copy of the checkout in a fresh workspace, running in the background: conftest.py starts it
     when the session collects this file, so the engine compiles on one core while the other tests run (the build is
-    the suite's longest step); the workspace fixture waits for it."""
+    the suite's longest step); the workspace fixture waits for it. Its exit code is written beside its log, so that
+    another process of the session (a pytest-xdist worker) can wait for it too (`attach`)."""
 
     def __init__(self, ws: Path, compile_jobs: int = 2):
         self.ws = ws
         copy_package_source(ws / "src" / PACKAGE)
-        self.env = dict(os.environ)
-        self.env["COLCON_HOME"] = str(ws / ".colcon")  # no user defaults / mixins
-        self.env.pop("AMENT_PREFIX_PATH", None)
-        self.env.pop("COLCON_PREFIX_PATH", None)
+        self.env = build_environment(ws)
         build_env = dict(self.env, LINE_ODOM_BUILD_JOBS=str(compile_jobs))
-        self.log_path = ws / "colcon_build.log"
+        self.log_path, self.exit_path = ws / "colcon_build.log", ws / "colcon_build.exit"
         self.start = time.monotonic()
         with open(self.log_path, "w") as log:
             self.proc = subprocess.Popen([str(COLCON), "build", "--base-paths", "src", "--event-handlers",
                                           "console_direct+"],
                                          cwd=ws, env=build_env, stdout=log, stderr=subprocess.STDOUT,
                                          stdin=subprocess.DEVNULL, start_new_session=True)
+        threading.Thread(target=self._record_exit, daemon=True).start()
+
+    def _record_exit(self) -> None:
+        code = self.proc.wait()
+        tmp = self.exit_path.with_suffix(".tmp")
+        tmp.write_text(str(code))
+        tmp.replace(self.exit_path)
+
+    @classmethod
+    def attach(cls, ws: Path) -> "ColconBuild":
+        """The build another process of this session started (or is about to start) in `ws`."""
+        build = cls.__new__(cls)
+        build.ws, build.env, build.proc = ws, build_environment(ws), None
+        build.log_path, build.exit_path = ws / "colcon_build.log", ws / "colcon_build.exit"
+        build.start = time.monotonic()
+        return build
 
     def finish(self) -> tuple[int, str]:
-        """The build's exit code and output, waiting for it up to BUILD_TIMEOUT_S from its start."""
-        try:
-            code = self.proc.wait(timeout=max(1.0, BUILD_TIMEOUT_S - (time.monotonic() - self.start)))
-        except subprocess.TimeoutExpired:
-            self.stop()
-            code = -1
-        return code, self.log_path.read_text()
+        """The build's exit code and output, waiting for it up to BUILD_TIMEOUT_S from its start (from now, for an
+        attached build)."""
+        deadline = self.start + BUILD_TIMEOUT_S
+        if self.proc is not None:
+            try:
+                code = self.proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.stop()
+                code = -1
+        else:
+            while not self.exit_path.is_file() and time.monotonic() < deadline:
+                time.sleep(0.5)
+            code = int(self.exit_path.read_text()) if self.exit_path.is_file() else -1
+        log = self.log_path.read_text() if self.log_path.is_file() else "(no build log: the build never started)"
+        return code, log
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
+        if self.proc is not None and self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
+
+
+def build_environment(ws: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env["COLCON_HOME"] = str(ws / ".colcon")  # no user defaults / mixins
+    env.pop("AMENT_PREFIX_PATH", None)
+    env.pop("COLCON_PREFIX_PATH", None)
+    return env
 
 
 COLCON_BUILD = pytest.StashKey[ColconBuild]()
