@@ -76,9 +76,7 @@ setup(
     version=VERSION,
     packages=find_packages(include=["line_odom", "line_odom.*", "line_odom_core", "line_odom_core.*"]),
     package_data={"line_odom_core": ["py.typed", "*.pyi"], "line_odom": ["py.typed"]},
-    # scripts/setup.sh compiles both in place (beside the dependencies' install) before it installs the package
-    # editable, which then leaves them as they are rather than compiling them a second time
-    ext_modules=[] if os.environ.get("LINE_ODOM_ENGINE_BUILT_IN_PLACE") == "1" else [core, testing],
+    ext_modules=[core, testing],
     cmdclass={"build_ext": AtomicInplaceBuildExt},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),

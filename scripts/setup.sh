@@ -6,8 +6,7 @@
 #      missing - and .venv in the repository root
 #   3. pinned Python dependencies: requirements/dev.txt (and no-deps.txt) under the constraints requirements/lock.txt
 #   4. tf2_msgs built into the venv when `import tf2_msgs.msg` fails (scripts/build_tf2_msgs.sh)
-#   5. line_odom itself, editable (pip install -e .), with the engine extension built in place (on a fresh
-#      install compiled in the background during steps 3 and 4)
+#   5. line_odom itself, editable (pip install -e .), with the engine extension built in place
 #
 # Every step is skipped when its result is present and its inputs (hashed into .venv/.setup/) are
 # unchanged, so re-running takes seconds and changes nothing. After it, .venv/bin/python runs
@@ -105,30 +104,6 @@ if [ -n "$base" ]; then
     "$base" -m venv "$VENV" || die "could not create .venv (on Debian/Ubuntu: apt-get install python3.11-venv)."
 fi
 
-# ---- the engine's compile starts first ------------------------------------------------------------
-# A fresh install compiles the C++ engine (a few minutes on two cores) in the background while the dependencies and
-# tf2_msgs install: it needs only pybind11 and setuptools. Step 5 waits for it, then installs line_odom editable without
-# compiling the engine a second time (LINE_ODOM_ENGINE_BUILT_IN_PLACE, read by setup.py).
-pkg_fp="$(fingerprint setup.py setup.cfg package.xml)"
-mapfile -t engine_headers < <(find line_odom_core/cpp -type f \( -name '*.hpp' -o -name '*.h' \) | LC_ALL=C sort)
-mapfile -t engine_sources < <(find line_odom_core/cpp -type f -name '*.cpp' | LC_ALL=C sort)
-headers_fp="$(fingerprint setup.py "${engine_headers[@]}")"
-engine_fp="$(fingerprint setup.py "${engine_headers[@]}" "${engine_sources[@]}")"
-ext_present() { compgen -G "line_odom_core/_core.cpython-*.so" >/dev/null && compgen -G "line_odom_core/_testing.cpython-*.so" >/dev/null; }
-fresh_install=0
-if ! stamp_ok package "$pkg_fp" || ! (cd / && "$PY" -c 'import line_odom' >/dev/null 2>&1); then fresh_install=1; fi
-engine_build=""
-if [ "$fresh_install" = 1 ]; then
-    say "building the C++ engine in the background (a few minutes; log: build/engine_build.log)"
-    pip_quiet install "$(grep -E '^pybind11==' "$REQ/lock.txt")" "$(grep -E '^setuptools==' "$REQ/lock.txt")" \
-        || die "could not install pybind11 and setuptools (the engine's build needs them)"
-    rm -rf build/tmp_setup  # every object afresh: setup.py (its flags) may have changed
-    "$PY" setup.py -q build_ext --inplace --force --build-temp build/tmp_setup --build-lib build/lib_setup \
-        >"$ROOT/build/engine_build.log" 2>&1 &
-    engine_build=$!
-    trap '[ -z "$engine_build" ] || kill "$engine_build" 2>/dev/null || true' EXIT
-fi
-
 # ---- 3. pinned Python dependencies ---------------------------------------------------------------
 deps_fp="$(fingerprint "$REQ/base.txt" "$REQ/dev.txt" "$REQ/no-deps.txt" "$REQ/lock.txt")"
 if ! stamp_ok deps "$deps_fp"; then
@@ -148,14 +123,15 @@ if ! (cd / && "$PY" -c 'import tf2_msgs.msg' >/dev/null 2>&1); then
 fi
 
 # ---- 5. line_odom, editable, engine built in place -----------------------------------------------
-if [ "$fresh_install" = 1 ]; then
-    say "waiting for the C++ engine's build"
-    wait "$engine_build" || die "building line_odom_core._core and ._testing failed (build/engine_build.log):
-$(tail -n 40 "$ROOT/build/engine_build.log")"
-    engine_build=""
-    say "installing line_odom (editable)"
-    LINE_ODOM_ENGINE_BUILT_IN_PLACE=1 pip_quiet install --no-build-isolation --no-deps -e "$ROOT" \
-        || die "pip install -e . failed"
+pkg_fp="$(fingerprint setup.py setup.cfg package.xml)"
+mapfile -t engine_headers < <(find line_odom_core/cpp -type f \( -name '*.hpp' -o -name '*.h' \) | LC_ALL=C sort)
+mapfile -t engine_sources < <(find line_odom_core/cpp -type f -name '*.cpp' | LC_ALL=C sort)
+headers_fp="$(fingerprint setup.py "${engine_headers[@]}")"
+engine_fp="$(fingerprint setup.py "${engine_headers[@]}" "${engine_sources[@]}")"
+ext_present() { compgen -G "line_odom_core/_core.cpython-*.so" >/dev/null && compgen -G "line_odom_core/_testing.cpython-*.so" >/dev/null; }
+if ! stamp_ok package "$pkg_fp" || ! (cd / && "$PY" -c 'import line_odom' >/dev/null 2>&1); then
+    say "installing line_odom (editable) and building the C++ engine (a few minutes)"
+    pip_quiet install --no-build-isolation --no-deps -e "$ROOT" || die "pip install -e . failed"
     stamp_set package "$pkg_fp"
     stamp_set headers "$headers_fp"
     stamp_set engine "$engine_fp"
