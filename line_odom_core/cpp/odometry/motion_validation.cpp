@@ -34,12 +34,16 @@ std::string axes_text(int axes) {
   return text;
 }
 
-// The axes of xi (bits) along which a motion of covariance `covariance` is known to a third of `tolerance` (rotations
-// at `lever`).
+// The resolution at which the point map's alignment resolves an axis: a third of the tolerance.
+double points_resolution(double tolerance) { return tolerance / 3.0; }
+
+// The axes of xi (bits) along which a motion of covariance `covariance` is known to points_resolution(`tolerance`)
+// (rotations at `lever`).
 int resolved_axes(const Mat6& covariance, double tolerance, double lever) {
   int axes = 0;
   for (int k = 0; k < 6; ++k)
-    if (std::sqrt(std::max(0.0, covariance(k, k))) * (k < 3 ? 1.0 : lever) < tolerance / 3.0) axes |= 1 << k;
+    if (std::sqrt(std::max(0.0, covariance(k, k))) * (k < 3 ? 1.0 : lever) < points_resolution(tolerance))
+      axes |= 1 << k;
   return axes;
 }
 
@@ -262,7 +266,8 @@ void MotionValidation::open_directions(const ValidationFrame& frame, const PassO
     // lines' valley reaches the points' motion: where the points resolve it, do not lean and put it farther than their
     // resolution (a third of the tolerance) from the lines', the lines' motion there is not confirmed either.
     unpinned = obs.unobserved & resolved & ~lean & ~within_basin(*by_points, basin) &
-               beyond_points_noise(outcome.best, *by_points, points_covariance, tolerance / 3.0, lever) & ~open;
+               beyond_points_noise(outcome.best, *by_points, points_covariance, points_resolution(tolerance), lever) &
+               ~open;
     open |= unpinned;
   }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
@@ -517,7 +522,7 @@ void MotionValidation::hold_at_the_map(const ValidationFrame& frame, const Rigid
 bool MotionValidation::held_travel(const ValidationFrame& frame, const PassOutcome& outcome,
                                    const RigidTransform& by_points, const Mat6& points_covariance, double tolerance,
                                    Vec6* step, Validated* out) const {
-  const double resolution = tolerance / 3.0;  // as resolved_axes
+  const double resolution = points_resolution(tolerance);
   const Vec3& travel = frame.prediction.t;
   if (frame.held_travel == nullptr || !(travel.norm() > resolution)) return false;
   const Vec3 along = travel.normalized();
