@@ -41,7 +41,7 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 import line_odom_core  # noqa: E402
 from line_odom.datasets import kitti_sequence, tum_sequence  # noqa: E402
-from line_odom.metrics import paired_difference, relative_pose_errors  # noqa: E402
+from line_odom.metrics import frame_motions, paired_difference, relative_pose_errors  # noqa: E402
 
 KITTI_LEVELS = {1: "full", 6: "1/36", 8: "1/64"}
 TUM_LEVELS = {1: "full", 10: "1/100"}
@@ -354,10 +354,6 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
 def steady_ms(ms: list[float]) -> float:
     """Milliseconds per frame after the first registration (which searches the first motion): the median."""
     return float(np.median(ms[2:] if len(ms) > 2 else ms[1:]))
-
-
-def frame_motions(poses: np.ndarray) -> np.ndarray:
-    return np.array([np.linalg.norm((np.linalg.inv(a) @ b)[:3, 3]) for a, b in zip(poses[:-1], poses[1:])])
 
 
 def flagged_and_gross(stats: list[dict], t: np.ndarray, gt: np.ndarray) -> tuple[int, int]:

@@ -105,6 +105,11 @@ def absolute_trajectory_errors(estimate: np.ndarray, ground_truth: np.ndarray):
     return np.linalg.norm(aligned - ground_truth[:, :3, 3], axis=1), T
 
 
+def frame_motions(poses: np.ndarray) -> np.ndarray:
+    """The translation (m) between each pair of consecutive poses."""
+    return np.array([np.linalg.norm((np.linalg.inv(a) @ b)[:3, 3]) for a, b in zip(poses[:-1], poses[1:])])
+
+
 def trajectory_distances(poses: np.ndarray) -> np.ndarray:
     """Cumulative path length per frame, accumulated in float32 like the devkit's trajectoryDistances."""
     steps = np.linalg.norm(np.diff(np.asarray(poses, dtype=float)[:, :3, 3], axis=0), axis=1)

@@ -118,19 +118,24 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 # The colcon build of test_package_build.py starts as soon as the session knows it runs that file, in the background,
 # so that it compiles on one core while other tests run: in a plain session when it has collected, under pytest-xdist
 # in the controller when the first worker has collected (a worker that runs the file waits for that build).
-COLCON_WS = "line_odom_colcon_ws"
+COLCON_WS = "line_odom_colcon_ws"  # the workerinput key of the build's workspace
+COLCON_WS_PATH = pytest.StashKey[Path]()  # the controller's: the workspace it gives the workers
+
+
+def in_build_file(test_files: list[str]) -> list[bool]:
+    return [Path(f).name == "test_package_build.py" for f in test_files]
 
 
 def start_colcon_build(config: pytest.Config, test_files: list[str], ws: Path | None = None) -> None:
-    in_build_file = [Path(f).name == "test_package_build.py" for f in test_files]
-    if config.option.collectonly or not any(in_build_file):
+    in_build = in_build_file(test_files)
+    if config.option.collectonly or not any(in_build):
         return
     import test_package_build as package_build
 
     if not package_build.COLCON.is_file():
         return  # the fixture reports it
     ws = ws or Path(tempfile.mkdtemp(prefix="line_odom_colcon_ws_"))
-    config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild(ws, 2 if all(in_build_file) else 1)
+    config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild(ws, 2 if all(in_build) else 1)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
@@ -138,7 +143,7 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     worker_input = getattr(session.config, "workerinput", None)
     if worker_input is None:
         start_colcon_build(session.config, files)
-    elif COLCON_WS in worker_input and any(Path(f).name == "test_package_build.py" for f in files):
+    elif COLCON_WS in worker_input and any(in_build_file(files)):
         import test_package_build as package_build
 
         session.config.stash[package_build.COLCON_BUILD] = package_build.ColconBuild.attach(
@@ -159,9 +164,6 @@ def pytest_xdist_node_collection_finished(node, ids: list[str]) -> None:
 
     if package_build.COLCON_BUILD not in node.config.stash:
         start_colcon_build(node.config, [i.split("::")[0] for i in ids], node.config.stash[COLCON_WS_PATH])
-
-
-COLCON_WS_PATH = pytest.StashKey[Path]()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

@@ -70,13 +70,19 @@ class ColconBuild:
     the suite's longest step); the workspace fixture waits for it. Its exit code is written beside its log, so that
     another process of the session (a pytest-xdist worker) can wait for it too (`attach`)."""
 
-    def __init__(self, ws: Path, compile_jobs: int = 2):
+    def __init__(self, ws: Path, compile_jobs: int = 2, started_elsewhere: bool = False):
         self.ws = ws
-        copy_package_source(ws / "src" / PACKAGE)
-        self.env = build_environment(ws)
-        build_env = dict(self.env, LINE_ODOM_BUILD_JOBS=str(compile_jobs))
+        self.env = dict(os.environ)
+        self.env["COLCON_HOME"] = str(ws / ".colcon")  # no user defaults / mixins
+        self.env.pop("AMENT_PREFIX_PATH", None)
+        self.env.pop("COLCON_PREFIX_PATH", None)
         self.log_path, self.exit_path = ws / "colcon_build.log", ws / "colcon_build.exit"
         self.start = time.monotonic()
+        self.proc = None
+        if started_elsewhere:
+            return
+        copy_package_source(ws / "src" / PACKAGE)
+        build_env = dict(self.env, LINE_ODOM_BUILD_JOBS=str(compile_jobs))
         with open(self.log_path, "w") as log:
             self.proc = subprocess.Popen([str(COLCON), "build", "--base-paths", "src", "--event-handlers",
                                           "console_direct+"],
@@ -93,11 +99,7 @@ class ColconBuild:
     @classmethod
     def attach(cls, ws: Path) -> "ColconBuild":
         """The build another process of this session started (or is about to start) in `ws`."""
-        build = cls.__new__(cls)
-        build.ws, build.env, build.proc = ws, build_environment(ws), None
-        build.log_path, build.exit_path = ws / "colcon_build.log", ws / "colcon_build.exit"
-        build.start = time.monotonic()
-        return build
+        return cls(ws, started_elsewhere=True)
 
     def finish(self) -> tuple[int, str]:
         """The build's exit code and output, waiting for it up to BUILD_TIMEOUT_S from its start (from now, for an
@@ -120,14 +122,6 @@ class ColconBuild:
         if self.proc is not None and self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
-
-
-def build_environment(ws: Path) -> dict[str, str]:
-    env = dict(os.environ)
-    env["COLCON_HOME"] = str(ws / ".colcon")  # no user defaults / mixins
-    env.pop("AMENT_PREFIX_PATH", None)
-    env.pop("COLCON_PREFIX_PATH", None)
-    return env
 
 
 COLCON_BUILD = pytest.StashKey[ColconBuild]()
