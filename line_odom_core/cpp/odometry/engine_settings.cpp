@@ -342,7 +342,9 @@ SettingsTable<ObservabilityOptions> validation_settings() {
              "z a push must be rejected by for its direction to count as pinned down; and by which a first motion's "
              "points must fit an alignment from a shifted start better than standing still's (or that start better "
              "than its mirror image about standing still), and a frame's points the lines' motion better than their "
-             "own alignment on the other side of standing still, for it to confirm the lines' direction"),
+             "own alignment on the other side of standing still, for it to confirm the lines' direction; and by which "
+             "a frame's points must fit their own alignment better than a turn the lines confirm for the turn to be "
+             "contradicted"),
   }};
 }
 

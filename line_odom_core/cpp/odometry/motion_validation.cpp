@@ -204,6 +204,7 @@ struct MotionValidation::Judgement {
   int open = kAllAxes;   // the directions not confirmed (open_directions)
   int reversed = 0, leaning = 0;
   int unpinned = 0;  // open directions the lines' own test leaves open and the points put elsewhere
+  int contradicted = 0;  // directions the lines' own test confirms and the points clearly fit elsewhere
   int two_way = 0;   // open translations the points put the other way while fitting the lines' motion as well
 };
 
@@ -229,7 +230,8 @@ void MotionValidation::open_directions(const ValidationFrame& frame, const PassO
   int& reversed = judgement->reversed;
   int& unpinned = judgement->unpinned;
   int& two_way = judgement->two_way;
-  reversed = unpinned = two_way = judgement->leaning = 0;
+  int& contradicted = judgement->contradicted;
+  reversed = unpinned = two_way = contradicted = judgement->leaning = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
   // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
@@ -269,6 +271,20 @@ void MotionValidation::open_directions(const ValidationFrame& frame, const PassO
                beyond_points_noise(outcome.best, *by_points, points_covariance, points_resolution(tolerance), lever) &
                ~open;
     open |= unpinned;
+    // Where the lines' own test confirms a direction, the tolerance bounds what the frame claims. But a turn the points
+    // put farther off than their resolution (at the scene's range), where they fit their own alignment better by
+    // validation.significance standard errors, is contradicted by evidence the intersection inliers did not produce:
+    // on a sparse scan that sees little but the road ahead, the lines trade a turn for a sideways shift and keep it as
+    // their velocity. Not the translations: there a sparse scan's alignment leans to standing still and follows the
+    // traffic (a car ahead that the drive follows to a stop).
+    contradicted = axes_apart(outcome.best, *by_points, points_resolution(tolerance), lever) & resolved &
+                   kRotationAxes & ~open;
+    if (contradicted != 0 &&
+        point_map.fit_advantage(*frame.points, frame.previous_pose, *by_points, outcome.best) >
+            lines_.config().validation.significance)
+      open |= contradicted;
+    else
+      contradicted = 0;
   }
   // The alignment is a local optimum from the prediction: where the points fit the lines' motion at least as well, it
   // stopped short of it (a first step too wide, a flat direction, a lean), and the points confirm the lines.
@@ -283,6 +299,7 @@ void MotionValidation::open_directions(const ValidationFrame& frame, const PassO
     open = two_way;
     reversed = 0;
     unpinned = 0;
+    contradicted = 0;
   }
   // Where the points lean, they cannot tell the lines' motion from standing still: the lines' own test decides there.
   judgement->leaning = obs.unobserved & lean;
@@ -377,7 +394,7 @@ void MotionValidation::settle_open_directions(const ValidationFrame& frame, cons
   const Observability& obs = judgement.obs;
   const int open = judgement.open;
   const int reversed = judgement.reversed, leaning = judgement.leaning, unpinned = judgement.unpinned,
-            two_way = judgement.two_way;
+            two_way = judgement.two_way, contradicted = judgement.contradicted;
 
   // Where the lines leave a direction open that the points put elsewhere, their valley (a turn traded for a shift) is
   // held there too: held on that axis alone, the lines slide along the rest of it.
@@ -400,6 +417,8 @@ void MotionValidation::settle_open_directions(const ValidationFrame& frame, cons
                                               "leaning to standing still"
                   : (open & ~unpinned) == 0 ? "McNemar z under validation.significance, the point map's alignment "
                                               "resolving it elsewhere"
+                  : (open & ~contradicted) == 0 ? "the point map fits its own alignment better by more than "
+                                                  "validation.significance standard errors"
                   : judged                  ? "the point map's alignment differs by more than validation.tolerance"
                   : (open & off_guess) != 0 ? "the guess differs by more than validation.tolerance"
                                             : "McNemar z under validation.significance");
