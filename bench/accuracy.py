@@ -14,6 +14,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-backwards  # each run backwards: stops become starts
     .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from scan 3 (from 0): mid-drive
     .venv/bin/python bench/accuracy.py --only kitti --kitti-mount 10 15 0   # a sensor tilted 10 deg in roll, 15 in pitch
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-view 180   # a sensor seeing only the half ahead of it
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
@@ -246,6 +247,7 @@ class Playback:
     start: int = 0
     backwards: bool = False
     mount: tuple[float, float, float] | None = None  # roll, pitch, yaw (deg) of the sensor turned on its mount
+    view: float | None = None  # deg of azimuth each scan keeps, centred ahead (x): the vehicle blocks the rest
 
     def apply(self, data):
         data = data.played_backwards() if self.backwards else data
@@ -255,7 +257,8 @@ class Playback:
     def suffix(self) -> str:
         return ((" backwards" if self.backwards else "") + (f" from {self.start}" if self.start else "") +
                 (f" x{self.stride}" if self.stride > 1 else "") +
-                (" mount {:g}/{:g}/{:g}".format(*self.mount) if self.mount else ""))
+                (" mount {:g}/{:g}/{:g}".format(*self.mount) if self.mount else "") +
+                (f" view {self.view:g}" if self.view else ""))
 
     def mount_transform(self) -> np.ndarray | None:
         """The 4x4 rotation M taking the scans' frame to the turned sensor's: points p -> R p, a motion D -> M D M^T."""
@@ -268,12 +271,18 @@ class Playback:
         return m
 
 
-def mounted_scan(data, i: int, beams: int, mount: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Scan i as run_kitti feeds it: `beams` of its lasers (0: all), turned by `mount` (mount_transform). A turned scan
-    comes with its rings (from the file's order): a sensor's rows are fixed to it, not to the scene's elevation angles."""
+def mounted_scan(data, i: int, beams: int, mount: np.ndarray | None,
+                 view: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Scan i as run_kitti feeds it: `beams` of its lasers (0: all), within `view` deg of azimuth centred ahead (None:
+    all), turned by `mount` (mount_transform). A turned scan comes with its rings (from the file's order): a sensor's
+    rows are fixed to it, not to the scene's elevation angles."""
     if not beams and mount is None:
-        return data.xyz(i), None
-    xyz, ring = kitti_beams(data, i, beams or 64)
+        xyz, ring = data.xyz(i), None
+    else:
+        xyz, ring = kitti_beams(data, i, beams or 64)
+    if view is not None:
+        seen = np.abs(np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))) <= 0.5 * view
+        xyz, ring = np.ascontiguousarray(xyz[seen]), None if ring is None else ring[seen]
     if mount is not None:
         xyz = np.ascontiguousarray(xyz @ mount[:3, :3].T)
     return xyz, ring
@@ -302,7 +311,7 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     genz_odom = genz_odometry(100.0) if genz_run else None
     mount = playback.mount_transform()
     for i in range(len(data)):
-        xyz, ring = mounted_scan(data, i, beams, mount)
+        xyz, ring = mounted_scan(data, i, beams, mount, playback.view)
         t0 = time.perf_counter()
         result = odom.register_points(xyz, float(data.times[i]), ring=ring)
         lo.ms.append((time.perf_counter() - t0) * 1e3)
@@ -749,6 +758,9 @@ def main(argv=None) -> int:
                         help="every scan turned as a sensor turned on its mount by these angles (deg, about x, y, z), "
                              "its rings from the file's order, the poses judged in the turned frame (rows named "
                              "'<run> mount R/P/Y'): a tilted sensor, and other samplings of the same scenes")
+    parser.add_argument("--kitti-view", type=float, metavar="DEG",
+                        help="every scan kept to the points within DEG of azimuth centred ahead (x), DEG in (0, 360]: "
+                             "a sensor the vehicle blocks behind it (rows named '<run> view DEG')")
     parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16, 32], choices=(8, 16, 32),
                         help="also KITTI kept to this many of its 64 lasers (every 4th for 16), every azimuth step, "
                              "with the vlp16 preset: a real 16-beam-like scan (none: skip)")
@@ -785,8 +797,10 @@ def main(argv=None) -> int:
         parser.error(f"--kitti-stride {args.kitti_stride}: expected a whole number of scans >= 1")
     if args.kitti_start < 0:
         parser.error(f"--kitti-start {args.kitti_start}: expected a scan index >= 0")
+    if args.kitti_view is not None and not 0.0 < args.kitti_view <= 360.0:
+        parser.error(f"--kitti-view {args.kitti_view:g}: expected degrees of azimuth in (0, 360]")
     playback = Playback(args.kitti_stride, args.kitti_start, args.kitti_backwards,
-                        tuple(args.kitti_mount) if args.kitti_mount else None)
+                        tuple(args.kitti_mount) if args.kitti_mount else None, args.kitti_view)
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; "
           f"KISS-ICP {'on' if kiss else 'off'} (deskew off, voxel = max_range / 100)")
     rows: list[Row] = []

@@ -94,6 +94,25 @@ def test_accuracy_turns_the_scans_as_a_tilted_sensor_sees_them():
     assert np.linalg.norm(turned[:3, :3] @ [1.0, 0.0, 0.0] - [1.0, 0.0, 0.0]) > 0.2
 
 
+def test_accuracy_keeps_each_scan_to_a_view_ahead():
+    """--kitti-view: each scan kept to the points within that azimuth of the sensor's forward axis (a sensor the vehicle
+    blocks behind it), rings kept with their points; rows named after it; a view outside (0, 360] is refused."""
+    data = accuracy.open_run("07", 3)
+    xyz, ring = accuracy.mounted_scan(data, 1, 16, None, 180.0)
+    all_xyz, all_ring = accuracy.mounted_scan(data, 1, 16, None)
+    assert (xyz[:, 0] >= 0.0).all() and len(xyz) == int((all_xyz[:, 0] >= 0.0).sum())
+    assert np.array_equal(ring, all_ring[all_xyz[:, 0] >= 0.0])
+    narrow, _ = accuracy.mounted_scan(data, 1, 0, None, 90.0)
+    azimuth = np.degrees(np.arctan2(narrow[:, 1], narrow[:, 0]))
+    assert np.abs(azimuth).max() <= 45.0 and len(narrow) < 0.3 * len(data.xyz(1))
+    row = accuracy.run_kitti("07", 6, 3, False, {}, 0, accuracy.Playback(view=180.0))
+    assert row.sequence == "07 view 180" and row.gross == 0
+    proc = subprocess.run([sys.executable, "bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--kitti-levels",
+                           "6", "--kitti-beams", "--kitti-view", "0", "--no-kiss"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode != 0 and "--kitti-view 0" in proc.stderr
+
+
 def test_accuracy_seed_spread_runs_a_directory_row_again(tmp_path):
     """--seeds re-runs each row as it was opened: a --data directory (not a shared run of its base name), played as
     its row was."""
