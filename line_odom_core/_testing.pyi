@@ -48,7 +48,7 @@ def point_map_alignment(map_points: npt.ArrayLike, ground: npt.ArrayLike | None,
 
 # The candidate search (candidates.hpp) of the lines of frame a (segments (N, 6), normals (N, 3), 0 where unknown)
 # against those of frame b moved by each guess (4x4) within its distance, in turn on one index: per guess the pairs
-# (index in a, index in b, segment distance).
+# (index in a, index in b, segment distance). taken_a >= 0: only the first taken_a lines of a are partners.
 def candidate_pairs(segments_a: npt.ArrayLike, normals_a: npt.ArrayLike, segments_b: npt.ArrayLike,
                     normals_b: npt.ArrayLike, guesses: list[npt.ArrayLike], max_distances: list[float],
-                    max_pairs_per_line: int) -> list[list[tuple[int, int, float]]]: ...
+                    max_pairs_per_line: int, taken_a: int = -1) -> list[list[tuple[int, int, float]]]: ...

@@ -105,3 +105,20 @@ def test_pairs_match_the_reference_for_every_guess_in_turn(lines, extent, k):
         assert len(expected) > lines // 4  # the scenes are dense enough to give many lines partners
         assert [(ia, ib) for ia, ib, _ in pairs] == [(ia, ib) for ia, ib, _ in expected]
         np.testing.assert_allclose([d for *_, d in pairs], [d for *_, d in expected], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("lines, extent", [(300, 15.0), (1500, 35.0)], ids=["box scan", "grid"])
+@pytest.mark.parametrize("k", [0, 3])
+def test_a_subset_of_frame_a_gives_the_pairs_of_that_subset_alone(lines, extent, k):
+    """The first lines of frame a (a registration window's newest scan, merged ahead of older ones) searched on the
+    index of all of them, its listings shared with the searches before: the pairs of an index of those lines alone."""
+    rng = np.random.default_rng(lines + k + 1)
+    seg_a, normals_a, seg_b, normals_b = scene(rng, lines, extent)
+    taken = lines // 3
+    guesses, distances = zip(*SCHEDULE)
+    everything = _testing.candidate_pairs(seg_a, normals_a, seg_b, normals_b, list(guesses), list(distances), k)
+    found = _testing.candidate_pairs(seg_a, normals_a, seg_b, normals_b, list(guesses), list(distances), k, taken)
+    for (guess, distance), pairs, all_pairs in zip(SCHEDULE, found, everything):
+        expected = reference_pairs(seg_a[:taken], normals_a[:taken], seg_b, normals_b, guess, distance, k)
+        assert len(expected) > taken // 4 and len(all_pairs) > len(expected)
+        assert [(ia, ib) for ia, ib, _ in pairs] == [(ia, ib) for ia, ib, _ in expected]

@@ -90,7 +90,12 @@ int LineRegistration::unobserved_axes_at(const LinePairTable& table, const Rigid
 bool LineRegistration::observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
                                         FrameStats* st) const {
   CandidateIndex index(prev);
-  const LastPassFit fit = refit_last_pass(index, cur, T, st);
+  return observes_every_direction(index, CandidateSubset{}, cur, T, st);
+}
+
+bool LineRegistration::observes_every_direction(CandidateIndex& index, const CandidateSubset& subset,
+                                                const ScanFeatures& cur, const RigidTransform& T, FrameStats* st) const {
+  const LastPassFit fit = refit_last_pass(index, cur, T, st, subset);
   Stopwatch checks;
   int inliers = 0;
   const bool observed = fit.converged && !fit.refined.degenerate &&
@@ -100,10 +105,11 @@ bool LineRegistration::observes_every_direction(const ScanFeatures& prev, const 
 }
 
 LineRegistration::LastPassFit LineRegistration::refit_last_pass(CandidateIndex& index, const ScanFeatures& cur,
-                                                const RigidTransform& T, FrameStats* st) const {
+                                                const RigidTransform& T, FrameStats* st,
+                                                const CandidateSubset& subset) const {
   LastPassFit fit;
   Stopwatch stage;
-  build_candidates(index, cur, T, last_pass_candidates(), &fit.corr, &fit.stats, pool_);
+  build_candidates(index, cur, T, last_pass_candidates(), &fit.corr, &fit.stats, pool_, subset);
   st->ms.candidates += stage.ms();
   stage = Stopwatch();
   fit.table = LinePairTable(fit.corr);
@@ -141,12 +147,19 @@ PassOutcome LineRegistration::register_features(const ScanFeatures& prev, const 
                                                 const RigidTransform& prediction, const RigidTransform& start,
                                                 bool limit_pairs, const RegistrationFrame& frame,
                                                 FrameStats* st) const {
+  CandidateIndex prev_index(prev);  // frame a never moves: indexed once for all passes
+  return register_features(prev_index, cur, prediction, start, limit_pairs, frame, st);
+}
+
+PassOutcome LineRegistration::register_features(CandidateIndex& prev_index, const ScanFeatures& cur,
+                                                const RigidTransform& prediction, const RigidTransform& start,
+                                                bool limit_pairs, const RegistrationFrame& frame,
+                                                FrameStats* st) const {
   Passes passes;
   passes.ropt = refine_options();
   passes.best = start;
   passes.copt = config_->candidates;
   if (!limit_pairs) passes.copt.max_pairs_per_line = config_->registration.first_motion_pairs_per_line;
-  CandidateIndex prev_index(prev);  // frame a never moves: indexed once for all passes
   for (int pass = 0; pass < config_->registration.passes; ++pass)
     run_pass(pass, prev_index, cur, prediction, limit_pairs, frame, &passes, st);
   const int axes = unobserved_after_passes(&passes);

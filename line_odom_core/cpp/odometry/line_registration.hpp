@@ -58,6 +58,10 @@ class LineRegistration {
   PassOutcome register_features(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                                 const RigidTransform& start, bool limit_pairs, const RegistrationFrame& frame,
                                 FrameStats* st) const;
+  // ... against the lines `prev_index` holds (its listings near cur's lines kept for later searches).
+  PassOutcome register_features(CandidateIndex& prev_index, const ScanFeatures& cur, const RigidTransform& prediction,
+                                const RigidTransform& start, bool limit_pairs, const RegistrationFrame& frame,
+                                FrameStats* st) const;
   // `cur` registered again from `start` (a registered estimate) against `prev`: the candidates re-associated and
   // refined, no RANSAC; `have` only when it observes every direction within reach of `prediction`.
   PassOutcome register_again(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
@@ -66,6 +70,9 @@ class LineRegistration {
   // direction of T: a well-conditioned refinement, enough of them meeting, no axis a push along which keeps them.
   bool observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
                                 FrameStats* st) const;
+  // ... of `prev` = `subset` of the lines `index` holds (a window's index and its newest scan: the same pairs).
+  bool observes_every_direction(CandidateIndex& index, const CandidateSubset& subset, const ScanFeatures& cur,
+                                const RigidTransform& T, FrameStats* st) const;
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
   // (threshold_scale: of the inlier threshold; max_distance > 0: instead of candidates.max_distance)
   double support(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T, double threshold_scale = 1.0,
@@ -79,7 +86,7 @@ class LineRegistration {
     bool converged = false;  // refine_motion's answer
   };
   LastPassFit refit_last_pass(CandidateIndex& index, const ScanFeatures& cur, const RigidTransform& T,
-                              FrameStats* st) const;
+                              FrameStats* st, const CandidateSubset& subset = CandidateSubset{}) const;
   CandidateOptions last_pass_candidates() const;  // the candidates of the last pass: its distance
   RefineOptions refine_options() const;
   // Finite and within registration.max_translation / max_rotation_deg of `prediction`.

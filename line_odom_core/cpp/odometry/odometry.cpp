@@ -252,10 +252,15 @@ PassOutcome Odometry::register_on_window(const ScanFeatures& cur, const RigidTra
   const std::size_t window_scans = scans.window.scans_within(config_.registration.max_lines);
   if (window_scans > 1 && state_.prediction.unmeasured_projector().isZero()) {
     FrameStats window_stats = *st;
-    PassOutcome on_window = lines_.register_features(scans.window.merged(window_scans), cur, prediction, start, true,
-                                                     frame, &window_stats);
+    const ScanFeatures merged = scans.window.merged(window_scans);
+    CandidateIndex window_index(merged);
+    PassOutcome on_window =
+        lines_.register_features(window_index, cur, prediction, start, true, frame, &window_stats);
+    // The window's newest scan is the last scan (merged first): its pairs from the window's index and its listings.
+    const CandidateSubset last_scan{scans.previous.h_lines.size(), scans.previous.v_lines.size(),
+                                    scans.previous.planes.size()};
     const bool kept = on_window.have && !on_window.stats.degenerate && on_window.held_directions == 0 &&
-                      lines_.observes_every_direction(scans.previous, cur, on_window.best, &window_stats);
+                      lines_.observes_every_direction(window_index, last_scan, cur, on_window.best, &window_stats);
     st->ms = window_stats.ms;
     st->iterations = window_stats.iterations;
     if (kept) {

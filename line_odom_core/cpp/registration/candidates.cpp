@@ -330,6 +330,8 @@ void span_distances(const SegmentSpan* spans, const int* ids, const SegmentSpan&
 // buffers of a match.
 struct CandidateIndex::Lines {
   std::vector<const LineFeature*> lines;
+  const LineFeature* all_begin;  // the lines they were taken from
+  std::size_t all_count;
   PartnerColumns columns;
   std::vector<SegmentSpan> spans;     // the segments, for their distances
   double magnitude = 0.0;  // largest |coordinate| of the segments (bounds the rounding of their distances)
@@ -356,7 +358,14 @@ struct CandidateIndex::Lines {
   std::vector<std::pair<int, int>> listed_range;  // [begin, end) in listed_ids
   std::vector<int> listed_ids;
 
-  explicit Lines(const std::vector<LineFeature>& all) : lines(usable(all)) {
+  // How many of the usable lines come from the first n of `all` (usable keeps their order).
+  int usable_before(std::size_t n) const {
+    if (n >= all_count) return static_cast<int>(lines.size());
+    return static_cast<int>(std::lower_bound(lines.begin(), lines.end(), all_begin + n) - lines.begin());
+  }
+
+  explicit Lines(const std::vector<LineFeature>& all)
+      : lines(usable(all)), all_begin(all.data()), all_count(all.size()) {
     spans.resize(lines.size());
     for (auto& c : box_columns) c.resize(lines.size());
     float_boxes.resize(lines.size());
@@ -526,8 +535,9 @@ void closest_partners(Nearby* nearby, size_t n, const IndexedLines& indexed, con
 }
 
 // Pairs of lines of frame a (indexed) with lines_b (frame b, moved into a by T) that pass the filters.
+// Only the first `taken` usable lines of frame a are partners.
 void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b, const RigidTransform& T,
-                 const CandidateOptions& opt, std::vector<LinePair>* out) {
+                 const CandidateOptions& opt, int taken, std::vector<LinePair>* out) {
   const std::vector<const LineFeature*>& usable_a = indexed.lines;
   if (usable_a.empty()) return;
   const double max_cos_lines = std::cos(deg2rad(opt.min_line_angle_deg));
@@ -658,10 +668,12 @@ void match_lines(IndexedLines& indexed, const std::vector<LineFeature>& lines_b,
           const int ia = indexed.listed_ids[e];
           const FloatBox& box = indexed.float_boxes[ia];
           ids[id_count] = ia;
-          id_count += all_of_xyz((box.lo <= reach_hi) & (box.hi >= reach_lo));
+          id_count += (ia < taken) & all_of_xyz((box.lo <= reach_hi) & (box.hi >= reach_lo));
         }
       } else {
-        collect(box_gap, [&](int ia) { ids[id_count++] = ia; });
+        collect(box_gap, [&](int ia) {
+          if (ia < taken) ids[id_count++] = ia;
+        });
       }
       for (size_t pad = id_count; pad < id_count + 3; ++pad) ids[pad] = 0;
       nearby_count = filter_partners(indexed.columns, ids, id_count, query, nearby);
@@ -709,24 +721,25 @@ CandidateIndex::CandidateIndex(const ScanFeatures& a)
 CandidateIndex::~CandidateIndex() = default;
 
 void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidTransform& T_ab_guess,
-                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats,
-                      WorkerPool* pool) {
+                      const CandidateOptions& options, Correspondences* out, CandidateStats* stats, WorkerPool* pool,
+                      const CandidateSubset& subset) {
   *out = Correspondences{};
   const ScanFeatures& a = *index.a_;
   std::vector<LinePair> pairs;
   if (options.max_pairs_per_line > 0)  // at most k per line of b
     pairs.reserve(static_cast<size_t>(options.max_pairs_per_line) * (b.v_lines.size() + b.h_lines.size()));
+  const int h_taken = index.h_->usable_before(subset.h_lines), v_taken = index.v_->usable_before(subset.v_lines);
   constexpr size_t kMinSharedLines = 1000;  // fewer lines of b: waking a worker costs about what it saves
   if (has_workers(pool) && b.h_lines.size() + b.v_lines.size() >= kMinSharedLines) {
     std::vector<LinePair> v_pairs;  // each search touches only its own index
     pool->run(2, [&](int task) {
-      if (task == 0) match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
-      else match_lines(*index.v_, b.h_lines, T_ab_guess, options, &v_pairs);       // V_a x H_b
+      if (task == 0) match_lines(*index.h_, b.v_lines, T_ab_guess, options, h_taken, &pairs);  // H_a x V_b
+      else match_lines(*index.v_, b.h_lines, T_ab_guess, options, v_taken, &v_pairs);       // V_a x H_b
     });
     pairs.insert(pairs.end(), v_pairs.begin(), v_pairs.end());
   } else {
-    match_lines(*index.h_, b.v_lines, T_ab_guess, options, &pairs);  // H_a x V_b
-    match_lines(*index.v_, b.h_lines, T_ab_guess, options, &pairs);  // V_a x H_b
+    match_lines(*index.h_, b.v_lines, T_ab_guess, options, h_taken, &pairs);  // H_a x V_b
+    match_lines(*index.v_, b.h_lines, T_ab_guess, options, v_taken, &pairs);  // V_a x H_b
   }
 
   // Cluster of the pair: the previous frame's normal cluster (paper §6.3), else the current frame's.
@@ -769,7 +782,8 @@ void build_candidates(CandidateIndex& index, const ScanFeatures& b, const RigidT
   }
 
   const double min_cos_planes = std::cos(deg2rad(options.plane_max_angle_deg));
-  for (const PlaneFeature& pa : a.planes) {
+  for (std::size_t i = 0; i < std::min(a.planes.size(), subset.planes); ++i) {
+    const PlaneFeature& pa = a.planes[i];
     if (!pa.plane.n.allFinite() || !std::isfinite(pa.plane.delta)) continue;
     const Plane plane_a = pa.plane.normalized();
     for (const PlaneFeature& pb : b.planes) {

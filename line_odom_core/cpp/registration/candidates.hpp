@@ -4,6 +4,8 @@
 // the other plane. Weights are the inverse size of the pair's normal cluster (1 for pairs without a normal).
 #pragma once
 
+#include <cstddef>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -22,6 +24,14 @@ struct CandidateOptions {
   double plane_max_angle_deg = 20.0;   // plane pairs: normals within this
   double plane_max_distance = 2.0;     // plane pairs: centroid-to-other-plane distance
   int max_pairs_per_line = 0;          // keep only the closest k partners of each line (0 = all)
+};
+
+// The lines and planes of frame a that a search takes: all, or the first h_lines, v_lines and planes (a scan merged
+// ahead of older ones, feature_window.hpp: that scan's own).
+struct CandidateSubset {
+  std::size_t h_lines = std::numeric_limits<std::size_t>::max();
+  std::size_t v_lines = std::numeric_limits<std::size_t>::max();
+  std::size_t planes = std::numeric_limits<std::size_t>::max();
 };
 
 struct CandidateStats {
@@ -47,7 +57,7 @@ class CandidateIndex {
 
  private:
   friend void build_candidates(CandidateIndex&, const ScanFeatures&, const RigidTransform&, const CandidateOptions&,
-                               Correspondences*, CandidateStats*, WorkerPool*);
+                               Correspondences*, CandidateStats*, WorkerPool*, const CandidateSubset&);
   const ScanFeatures* a_;
   std::unique_ptr<Lines> h_, v_;
 };
@@ -58,8 +68,9 @@ class CandidateIndex {
 // near each line of b by an earlier call while its guess moved the line less than the listing's margin: the same
 // result.
 // With a pool of several threads, the H x V and the V x H pairs are searched on two of them (the same result).
+// `subset`: of frame a's lines and planes, only those (the pairs an index of that subset alone gives, listings shared).
 void build_candidates(CandidateIndex& a, const ScanFeatures& b, const RigidTransform& T_ab_guess,
                       const CandidateOptions& options, Correspondences* out, CandidateStats* stats = nullptr,
-                      WorkerPool* pool = nullptr);
+                      WorkerPool* pool = nullptr, const CandidateSubset& subset = CandidateSubset{});
 
 }  // namespace line_odom

@@ -247,10 +247,11 @@ std::vector<line_odom::LineFeature> line_features(const char* name, const Segmen
 
 // build_candidates (candidates.hpp) of the H-lines of frame a against the V-lines of frame b, one call per guess and
 // distance in order on one index and the same b (as the passes of a frame): per call the pairs (index in a, index in
-// b, distance).
+// b, distance). `taken_a` >= 0: only the first taken_a lines of a are partners (CandidateSubset).
 std::vector<std::vector<std::tuple<int, int, double>>> candidate_pairs(
     const Segments& segments_a, const Points& normals_a, const Segments& segments_b, const Points& normals_b,
-    const std::vector<Pose>& guesses, const std::vector<double>& max_distances, int max_pairs_per_line) {
+    const std::vector<Pose>& guesses, const std::vector<double>& max_distances, int max_pairs_per_line,
+    int taken_a) {
   if (max_distances.size() != guesses.size())
     throw py::value_error("max_distances: expected one distance per guess");
   line_odom::ScanFeatures a, b;
@@ -258,6 +259,8 @@ std::vector<std::vector<std::tuple<int, int, double>>> candidate_pairs(
   b.v_lines = line_features("normals_b", segments_b, normals_b);
   line_odom::CandidateOptions options;
   options.max_pairs_per_line = max_pairs_per_line;
+  line_odom::CandidateSubset subset;
+  if (taken_a >= 0) subset.h_lines = static_cast<std::size_t>(taken_a);
   line_odom::CandidateIndex index(a);
   std::map<std::array<double, 6>, int> index_of;  // segment of frame a -> its index
   auto key = [](const line_odom::Segment& s) {
@@ -269,7 +272,7 @@ std::vector<std::vector<std::tuple<int, int, double>>> candidate_pairs(
     const line_odom::RigidTransform T = line_odom::RigidTransform::from_matrix(guesses[call]);
     options.max_distance = max_distances[call];
     line_odom::Correspondences corr;
-    line_odom::build_candidates(index, b, T, options, &corr);
+    line_odom::build_candidates(index, b, T, options, &corr, nullptr, nullptr, subset);
     auto& pairs = out.emplace_back();
     for (std::size_t i = 0; i < corr.lines_a.size(); ++i) {
       pairs.emplace_back(index_of.at(key(corr.segments_a[i])), corr.lines_b_index[i],
@@ -338,9 +341,11 @@ PYBIND11_MODULE(_testing, m) {
         "from `sigma`: the 4x4 pose it ends at.");
   m.def("candidate_pairs", &candidate_pairs, py::arg("segments_a"), py::arg("normals_a"), py::arg("segments_b"),
         py::arg("normals_b"), py::arg("guesses"), py::arg("max_distances"), py::arg("max_pairs_per_line"),
+        py::arg("taken_a") = -1,
         "The candidate search (candidates.hpp) of the lines of frame a (segments (N, 6), normals (N, 3), 0 where "
         "unknown) against those of frame b moved by each guess (4x4) within its distance, in turn on one index: per "
-        "guess the pairs (index in a, index in b, segment distance).");
+        "guess the pairs (index in a, index in b, segment distance). taken_a >= 0: only the first taken_a lines of a "
+        "are partners.");
   m.def("odometry_config_defaults",
         []() { return py_settings::to_dict(line_odom::odometry_settings(), line_odom::OdometryConfig{}); },
         "Every dotted engine setting with the default of its OdometryConfig member.");
