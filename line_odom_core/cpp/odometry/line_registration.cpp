@@ -87,12 +87,6 @@ int LineRegistration::unobserved_axes_at(const LinePairTable& table, const Rigid
 
 // Whether the pairs of `prev` and `cur` alone (picked under T at the last pass's candidate distance) observe every
 // direction of T: a well-conditioned refinement, enough of them meeting, no axis a push along which keeps them.
-bool LineRegistration::observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
-                                        FrameStats* st) const {
-  CandidateIndex index(prev);
-  return observes_every_direction(index, CandidateSubset{}, cur, T, st);
-}
-
 bool LineRegistration::observes_every_direction(CandidateIndex& index, const CandidateSubset& subset,
                                                 const ScanFeatures& cur, const RigidTransform& T, FrameStats* st) const {
   const LastPassFit fit = refit_last_pass(index, cur, T, st, subset);

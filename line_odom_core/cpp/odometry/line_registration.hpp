@@ -66,11 +66,9 @@ class LineRegistration {
   // refined, no RANSAC; `have` only when it observes every direction within reach of `prediction`.
   PassOutcome register_again(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& prediction,
                              const RigidTransform& start, const PassOutcome& first, FrameStats* st) const;
-  // Whether the pairs of `prev` and `cur` alone (picked under T at the last pass's candidate distance) observe every
-  // direction of T: a well-conditioned refinement, enough of them meeting, no axis a push along which keeps them.
-  bool observes_every_direction(const ScanFeatures& prev, const ScanFeatures& cur, const RigidTransform& T,
-                                FrameStats* st) const;
-  // ... of `prev` = `subset` of the lines `index` holds (a window's index and its newest scan: the same pairs).
+  // Whether the pairs of `cur` with `subset` of the lines `index` holds alone (picked under T at the last pass's
+  // candidate distance) observe every direction of T: a well-conditioned refinement, enough of them meeting, no axis a
+  // push along which keeps them. (A window's index and its newest scan: that scan's pairs, its listings shared.)
   bool observes_every_direction(CandidateIndex& index, const CandidateSubset& subset, const ScanFeatures& cur,
                                 const RigidTransform& T, FrameStats* st) const;
   // Weighted count of the candidate pairs (built under T as in the first pass after a guess) that meet under T.
