@@ -1,7 +1,7 @@
 """The benchmarks still run and print their tables (bench/ is not imported by the package): a short TUM run of
 bench/accuracy.py with its ground-truth clock table, the paired-difference table on synthetic rows (KISS-ICP is a
-benchmark-only dependency), bench/gt_consistency.py's constancy and scans'-own-motion tables on KITTI 00 and 07, and
-bench/latency.py's 16-laser row."""
+benchmark-only dependency), bench/gt_consistency.py's constancy and scans'-own-motion tables on KITTI 00 and 07,
+bench/latency.py's 16-laser row, and bench/covariance.py's count of frames outside their covariance."""
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import accuracy  # noqa: E402
+import covariance  # noqa: E402
 from line_odom.datasets import SHARED_DATA  # noqa: E402
 
 
@@ -182,6 +183,41 @@ def test_gt_consistency_registers_the_scans_from_the_ground_truth(gt_consistency
     # for 00 (half of KISS-ICP's 0.1957 m), which asks for less error than the scans' own motion has.
     gt_forward, forward, rpe = row("00")
     assert gt_forward - forward > 0.08 and rpe > 0.0979
+
+
+def test_covariance_counts_good_frames_outside_their_covariance_and_keeps_flagged_frames_apart(capsys):
+    """bench/covariance.py's row: a frame reported as good that lies beyond the 99.9 % chi-square bound of its own
+    covariance is counted (wrong with confidence); a flagged frame is summarized apart, by its largest NEES."""
+    from types import SimpleNamespace
+
+    sigma = 0.01
+    truth = [np.eye(4) for _ in range(5)]
+    for k in range(1, 5):
+        truth[k] = truth[k - 1] @ np.array([[1, 0, 0, 1.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+    def frame(error_x: float, flagged: bool):
+        delta = np.eye(4)
+        delta[0, 3] = 1.0 + error_x
+        return SimpleNamespace(delta=delta, covariance=np.eye(6) * sigma ** 2,
+                               stats={"degenerate": flagged, "registered": True})
+
+    # NEES = (e / sigma)^2: 1, 4 (good), 36 (good: beyond 22.46), 100 (flagged)
+    results = [frame(0.0, False), frame(sigma, False), frame(2 * sigma, False), frame(6 * sigma, False),
+               frame(10 * sigma, True)]
+    covariance.summarize("test", "full", results, np.array(truth))
+    row = capsys.readouterr().out.split("|")
+    assert row[0].split()[-3:] == ["4", "3", "1"]  # pairs, good, flagged
+    mean, median, within_95, beyond_999 = row[1].split()
+    assert abs(float(mean) - (1 + 4 + 36) / 3 / 6) < 1e-3 and within_95 == "0.67" and beyond_999 == "1"
+    assert abs(float(row[2]) - 100 / 6) < 1e-3
+
+
+def test_covariance_runs_a_real_run_with_16_lasers():
+    out = _run("bench/covariance.py", "--only", "kitti", "--kitti", "07", "--kitti-levels", "--kitti-beams", "16")
+    row = next(line for line in out.splitlines() if line.startswith("KITTI 07") and " 16b " in line)
+    pairs, good = (int(v) for v in row.split("|")[0].split()[-3:-1])
+    beyond_999 = int(row.split("|")[1].split()[3])
+    assert pairs == 9 and good == 9 and beyond_999 == 0  # 07 with 16 lasers: every frame within its covariance
 
 
 def test_latency_prints_the_16_laser_row():
