@@ -51,10 +51,14 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
       correct_sweep_again(&scan, in, &outcome, &st);
       aligned_before.reset();
     }
-    // 5. Validation. 6. Fusion with the motion model. 7. The points' refinement. 8. The pose and the map.
+    // 5. Validation. 6. Fusion with the motion model. 7. The points' refinement. 8. A frame reported as good: its
+    // covariance widened to cover the point map's alignment (after the refinement, which weighs the points by the
+    // lines' own). 9. The pose and the map.
     const Validated validated = validate(&scan, in, aligned_before, &outcome, &st);
     const FusedMotion fused = fuse(outcome, in, validated, &result);
     refine_on_points(scan, fused, &result);
+    if (validated.judged && st.registered && !st.degenerate)
+      result.covariance = covering(result.covariance, result.delta, validated.by_points);
     advance(scan, ground, in, fused, validated, &result);
   }
   result.pose = state_.pose;

@@ -113,4 +113,10 @@ FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& predic
   return out;
 }
 
+Mat6 covering(const Mat6& covariance, const RigidTransform& delta, const RigidTransform& other) {
+  const Vec6 difference = motion_difference(other, delta);
+  if (!difference.allFinite()) return covariance;
+  return covariance + difference * difference.transpose();
+}
+
 }  // namespace line_odom

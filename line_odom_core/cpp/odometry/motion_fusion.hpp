@@ -34,4 +34,9 @@ Mat6 reference_covariance(const RegistrationOptions& options, bool have_velocity
 FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& prediction, const RigidTransform& reference,
                         const RegistrationOptions& options, bool fuse_prior, const Mat6& unmeasured);
 
+// `covariance` of `delta` widened to cover `other`, an independent measurement of the same motion: plus d d^T, d the
+// difference of the two (motion_difference). Two independent estimates differ by the sum of their errors, so their
+// difference is a sample of the error the covariance must allow; with it, `other` lies within one standard deviation.
+Mat6 covering(const Mat6& covariance, const RigidTransform& delta, const RigidTransform& other);
+
 }  // namespace line_odom
