@@ -734,17 +734,8 @@ def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> Non
               f"{r.min():5.3f}-{r.max():5.3f} | {met_text} ({goal(row)[0]})", flush=True)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--only", choices=("kitti", "tum", "sim"), help="run one dataset (sim: the simulated drive)")
-    parser.add_argument("--kitti", nargs="+", default=None,
-                        help="KITTI sequences of the shared set and 'stop_and_go' (default: every run there)")
-    parser.add_argument("--data", nargs="+", default=[], metavar="DIR",
-                        help="also these directories in the KITTI odometry layout (velodyne/, times.txt, calib.txt, "
-                             "poses_gt.txt or reference_poses.txt), run as the shared sequences are")
-    parser.add_argument("--kitti-levels", nargs="*", type=int, default=[1, 6, 8],
-                        help="downsampling steps (none: skip)")
-    parser.add_argument("--kitti-frames", type=int, default=None, help="frames per sequence (default all)")
+def add_playback_arguments(parser: argparse.ArgumentParser) -> None:
+    """--kitti-stride, --kitti-start, --kitti-backwards, --kitti-mount, --kitti-view: how each KITTI run is played."""
     parser.add_argument("--kitti-stride", type=int, default=1, metavar="K",
                         help="every K-th scan of each run, stamps kept: each scan moves K times as far (rows named "
                              "'<run> xK'; the runs beyond the speeds they hold)")
@@ -761,6 +752,32 @@ def main(argv=None) -> int:
     parser.add_argument("--kitti-view", type=float, metavar="DEG",
                         help="every scan kept to the points within DEG of azimuth centred ahead (x), DEG in (0, 360]: "
                              "a sensor the vehicle blocks behind it (rows named '<run> view DEG')")
+
+
+def playback_from(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Playback:
+    """The Playback that add_playback_arguments' arguments ask for (a bad value is refused naming its argument)."""
+    if args.kitti_stride < 1:
+        parser.error(f"--kitti-stride {args.kitti_stride}: expected a whole number of scans >= 1")
+    if args.kitti_start < 0:
+        parser.error(f"--kitti-start {args.kitti_start}: expected a scan index >= 0")
+    if args.kitti_view is not None and not 0.0 < args.kitti_view <= 360.0:
+        parser.error(f"--kitti-view {args.kitti_view:g}: expected degrees of azimuth in (0, 360]")
+    return Playback(args.kitti_stride, args.kitti_start, args.kitti_backwards,
+                    tuple(args.kitti_mount) if args.kitti_mount else None, args.kitti_view)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--only", choices=("kitti", "tum", "sim"), help="run one dataset (sim: the simulated drive)")
+    parser.add_argument("--kitti", nargs="+", default=None,
+                        help="KITTI sequences of the shared set and 'stop_and_go' (default: every run there)")
+    parser.add_argument("--data", nargs="+", default=[], metavar="DIR",
+                        help="also these directories in the KITTI odometry layout (velodyne/, times.txt, calib.txt, "
+                             "poses_gt.txt or reference_poses.txt), run as the shared sequences are")
+    parser.add_argument("--kitti-levels", nargs="*", type=int, default=[1, 6, 8],
+                        help="downsampling steps (none: skip)")
+    parser.add_argument("--kitti-frames", type=int, default=None, help="frames per sequence (default all)")
+    add_playback_arguments(parser)
     parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16, 32], choices=(8, 16, 32),
                         help="also KITTI kept to this many of its 64 lasers (every 4th for 16), every azimuth step, "
                              "with the vlp16 preset: a real 16-beam-like scan (none: skip)")
@@ -793,14 +810,7 @@ def main(argv=None) -> int:
     if args.only == "sim":
         args.sim = True
     overrides, kiss = overrides_and_kiss(parser, args)
-    if args.kitti_stride < 1:
-        parser.error(f"--kitti-stride {args.kitti_stride}: expected a whole number of scans >= 1")
-    if args.kitti_start < 0:
-        parser.error(f"--kitti-start {args.kitti_start}: expected a scan index >= 0")
-    if args.kitti_view is not None and not 0.0 < args.kitti_view <= 360.0:
-        parser.error(f"--kitti-view {args.kitti_view:g}: expected degrees of azimuth in (0, 360]")
-    playback = Playback(args.kitti_stride, args.kitti_start, args.kitti_backwards,
-                        tuple(args.kitti_mount) if args.kitti_mount else None, args.kitti_view)
+    playback = playback_from(parser, args)
     print(f"line_odom_core {line_odom_core.__version__}; overrides {overrides or 'none'}; "
           f"KISS-ICP {'on' if kiss else 'off'} (deskew off, voxel = max_range / 100)")
     rows: list[Row] = []

@@ -3,11 +3,12 @@
 
     .venv/bin/python bench/covariance.py                # every real run at 1, 1/36, 1/64, 16 and 32 lasers; TUM; sim
     .venv/bin/python bench/covariance.py --only kitti --kitti 07 --kitti-levels 6 --kitti-beams
+    .venv/bin/python bench/covariance.py --only kitti --kitti-stride 2 --kitti-levels 6 8 --kitti-beams 16
     .venv/bin/python bench/covariance.py --only tum --set registration.covariance_scale=1
 
 For each frame, e = the error of the registered motion against the reference's (x y z rx ry rz, the chart of the
-result's covariance C) and NEES = e^T C^-1 e. The KITTI runs are those of bench/accuracy.py, read and thinned as it
-reads them, judged against their ground truth; KITTI 00 and 08 (whose ground truth disagrees with their scans) and the
+result's covariance C) and NEES = e^T C^-1 e. The KITTI runs are those of bench/accuracy.py, read, played
+(--kitti-stride, --kitti-backwards, --kitti-view, ...) and thinned as it reads them, judged against their ground truth; KITTI 00 and 08 (whose ground truth disagrees with their scans) and the
 stop-and-go drive (whose reference poses are KISS-ICP's own at full resolution, its cold start in their first frames:
 docs/RESULTS.md, "Accuracy") against the dense registration of their scans, on all six axes.
 
@@ -71,23 +72,26 @@ def summarize(name: str, level: str, results: list, reference: np.ndarray, valid
           f"{(f'{bad.max() / 6:9.3f}' if len(bad) else f'{chr(45):>9}')} | {axes}", flush=True)
 
 
-def run_kitti(runs, levels, beams, overrides) -> None:
-    """Each run as bench/accuracy.py reads it and thins it (levels of kitti_hdl64, `beams` of its lasers with vlp16)."""
+def run_kitti(runs, levels, beams, overrides, playback: accuracy.Playback = accuracy.Playback()) -> None:
+    """Each run as bench/accuracy.py reads it, plays it and thins it (levels of kitti_hdl64, `beams` of its lasers with
+    vlp16)."""
+    mount = playback.mount_transform()
     for name in runs:
-        data = accuracy.open_run(name, None if accuracy.run_name(name) == accuracy.STOP_AND_GO else 10)
-        label = f"KITTI {accuracy.run_name(name)}"
-        reference = (accuracy.dense_reference(accuracy.run_name(name), data)
-                     if accuracy.run_name(name) in DENSE_REFERENCE else data.poses)
+        data = playback.apply(accuracy.open_run(name, None if accuracy.run_name(name) == accuracy.STOP_AND_GO else 10))
+        label = f"KITTI {accuracy.run_name(name)}{playback.suffix()}"
+        reference = (accuracy.dense_reference(label, data) if accuracy.run_name(name) in DENSE_REFERENCE else
+                     data.poses)
+        if mount is not None:  # the scans' poses as the turned sensor's
+            reference = np.array([mount @ pose @ mount.T for pose in reference])
         for level, lasers in [(level, 0) for level in levels] + [(1, b) for b in beams]:
             config = (accuracy.beams_config(lasers, overrides) if lasers else
                       line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))
             odom = line_odom_core.Odometry(config)
             results = []
             for i in range(len(data)):
-                xyz, ring = accuracy.mounted_scan(data, i, lasers, None)
+                xyz, ring = accuracy.mounted_scan(data, i, lasers, mount, playback.view)
                 results.append(odom.register_points(xyz, float(data.times[i]), ring=ring))
-            summarize(label, f"{lasers}b" if lasers else level_name(level), results,
-                      reference)
+            summarize(label, f"{lasers}b" if lasers else level_name(level), results, reference)
 
 
 def run_tum(levels, frames, clock_offsets, overrides) -> None:
@@ -125,6 +129,7 @@ def main(argv=None) -> int:
     parser.add_argument("--kitti-levels", nargs="*", type=int, default=[1, 6, 8])
     parser.add_argument("--kitti-beams", nargs="*", type=int, default=[16, 32], choices=(16, 32),
                         help="also each run kept to 16 / 32 of its 64 lasers")
+    accuracy.add_playback_arguments(parser)
     parser.add_argument("--tum-levels", nargs="+", type=int, default=[1, 10])
     parser.add_argument("--tum-frames", type=int, default=300)
     parser.add_argument("--tum-clock-offsets", nargs="*", type=float, default=[-0.04], metavar="S",
@@ -142,7 +147,8 @@ def main(argv=None) -> int:
           f"{'<=95%':>6} {'>99.9%':>6} | flagged: {'max/6':>9} | good, rms of e_i / sigma_i: x y z rx ry rz "
           f"(1 = consistent)")
     if args.only in (None, "kitti"):
-        run_kitti(args.kitti or accuracy.default_runs(), args.kitti_levels, args.kitti_beams, overrides)
+        run_kitti(args.kitti or accuracy.default_runs(), args.kitti_levels, args.kitti_beams, overrides,
+                  accuracy.playback_from(parser, args))
     if args.only in (None, "tum"):
         run_tum(args.tum_levels, args.tum_frames, args.tum_clock_offsets, overrides)
     if args.only in (None, "sim"):

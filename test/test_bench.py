@@ -220,6 +220,15 @@ def test_covariance_runs_a_real_run_with_16_lasers():
     assert pairs == 9 and good == 9 and beyond_999 == 0  # 07 with 16 lasers: every frame within its covariance
 
 
+def test_covariance_plays_a_run_as_the_accuracy_bench_does():
+    """--kitti-stride 2 --kitti-backwards: the row is named as bench/accuracy.py names it and holds the pairs of the
+    scans played (07's ten scans backwards, every 2nd: four pairs)."""
+    out = _run("bench/covariance.py", "--only", "kitti", "--kitti", "07", "--kitti-levels", "8", "--kitti-beams",
+               "--kitti-stride", "2", "--kitti-backwards")
+    row = next(line for line in out.splitlines() if line.startswith("KITTI 07 backwards x2"))
+    assert row.split("|")[0].split()[-4:-2] == ["1/64", "4"], row
+
+
 def test_latency_prints_the_16_laser_row():
     out = _run("bench/latency.py", "--only", "kitti", "--kitti", "07", "--kitti-levels", "--kitti-beams", "16",
                "--no-kiss")
