@@ -270,6 +270,11 @@ class Playback:
         m[:3, :3] = Rotation.from_euler("xyz", self.mount, degrees=True).as_matrix()
         return m
 
+    def mounted(self, poses: np.ndarray | None) -> np.ndarray | None:
+        """The scans' poses as the turned sensor's (M P M^T; as they are without a mount)."""
+        mount = self.mount_transform()
+        return poses if mount is None or poses is None else np.array([mount @ p @ mount.T for p in poses])
+
 
 def mounted_scan(data, i: int, beams: int, mount: np.ndarray | None,
                  view: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -330,11 +335,8 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
                 genz_run.poses.append(peer_pose(genz_odom))
     judged = run_name(seq) in GT_DISAGREES and data.poses is not None
 
-    def mounted(poses: np.ndarray) -> np.ndarray:  # the scans' poses as the turned sensor's
-        return poses if mount is None or poses is None else np.array([mount @ p @ mount.T for p in poses])
-
-    ground_truth = mounted(data.poses)
-    dense = mounted(dense_reference(label, data)) if judged else None
+    ground_truth = playback.mounted(data.poses)
+    dense = playback.mounted(dense_reference(label, data)) if judged else None
 
     def errors(poses):
         t, r = frame_errors(np.array(poses), ground_truth)
@@ -365,10 +367,15 @@ def steady_ms(ms: list[float]) -> float:
     return float(np.median(ms[2:] if len(ms) > 2 else ms[1:]))
 
 
+def flagged_frames(stats: list[dict]) -> np.ndarray:
+    """Per frame whether it was flagged: reported degenerate or not registered."""
+    return np.array([bool(s["degenerate"]) or not s["registered"] for s in stats], dtype=bool)
+
+
 def flagged_and_gross(stats: list[dict], t: np.ndarray, gt: np.ndarray) -> tuple[int, int]:
     """Frames flagged (degenerate or not registered), and gross frames not flagged: off by more than max(0.3 m, 30 %
     of the frame's motion)."""
-    flagged = np.array([bool(s["degenerate"]) or not s["registered"] for s in stats[1:]])
+    flagged = flagged_frames(stats[1:])
     gross = t > np.maximum(0.3, 0.3 * frame_motions(gt))
     return int(flagged.sum()), int((gross & ~flagged).sum())
 

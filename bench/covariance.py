@@ -8,9 +8,10 @@
 
 For each frame, e = the error of the registered motion against the reference's (x y z rx ry rz, the chart of the
 result's covariance C) and NEES = e^T C^-1 e. The KITTI runs are those of bench/accuracy.py, read, played
-(--kitti-stride, --kitti-backwards, --kitti-view, ...) and thinned as it reads them, judged against their ground truth; KITTI 00 and 08 (whose ground truth disagrees with their scans) and the
-stop-and-go drive (whose reference poses are KISS-ICP's own at full resolution, its cold start in their first frames:
-docs/RESULTS.md, "Accuracy") against the dense registration of their scans, on all six axes.
+(--kitti-stride, --kitti-backwards, --kitti-view, ...) and thinned as it reads them, judged against their ground
+truth; KITTI 00 and 08 (whose ground truth disagrees with their scans) and the stop-and-go drive (whose reference poses
+are KISS-ICP's own at full resolution, its cold start in their first frames: docs/RESULTS.md, "Accuracy") against the
+dense registration of their scans, on all six axes.
 
 Frames reported as good (registered, not degenerate) and flagged frames are summarized apart. Good frames: mean NEES / 6
 (1 = consistent; > 1 too confident: an EKF fusing the odometry trusts it too much; < 1 too cautious), the median, the
@@ -56,7 +57,7 @@ def frame_deltas(poses: np.ndarray) -> np.ndarray:
 def summarize(name: str, level: str, results: list, reference: np.ndarray, valid: np.ndarray | None = None) -> None:
     deltas = np.array([r.delta for r in results[1:]])
     covs = np.array([r.covariance for r in results[1:]])
-    flagged = np.array([bool(r.stats["degenerate"]) or not r.stats["registered"] for r in results[1:]])
+    flagged = accuracy.flagged_frames([r.stats for r in results[1:]])
     keep = np.ones(len(deltas), bool) if valid is None else valid[:-1] & valid[1:]
     n = np.full(len(deltas), np.nan)
     e = motion_errors(deltas[keep], frame_deltas(reference)[keep])
@@ -68,8 +69,9 @@ def summarize(name: str, level: str, results: list, reference: np.ndarray, valid
     stats = (f"{g.mean() / 6:9.3f} {np.median(g) / 6:8.3f} {(g <= CHI2_95_6DOF).mean():6.2f} "
              f"{int((g > CHI2_999_6DOF).sum()):6d}" if len(g) else f"{'-':>9} {'-':>8} {'-':>6} {'-':>6}")
     bad = n[keep & flagged]
-    print(f"{name:18} {level:>5} {int(keep.sum()):5d} {len(g):5d} {len(bad):5d} | {stats} | "
-          f"{(f'{bad.max() / 6:9.3f}' if len(bad) else f'{chr(45):>9}')} | {axes}", flush=True)
+    bad_max = f"{bad.max() / 6:9.3f}" if len(bad) else f"{'-':>9}"
+    print(f"{name:18} {level:>5} {int(keep.sum()):5d} {len(g):5d} {len(bad):5d} | {stats} | {bad_max} | {axes}",
+          flush=True)
 
 
 def run_kitti(runs, levels, beams, overrides, playback: accuracy.Playback = accuracy.Playback()) -> None:
@@ -77,12 +79,10 @@ def run_kitti(runs, levels, beams, overrides, playback: accuracy.Playback = accu
     vlp16)."""
     mount = playback.mount_transform()
     for name in runs:
-        data = playback.apply(accuracy.open_run(name, None if accuracy.run_name(name) == accuracy.STOP_AND_GO else 10))
+        data = playback.apply(accuracy.open_run(name, None))
         label = f"KITTI {accuracy.run_name(name)}{playback.suffix()}"
-        reference = (accuracy.dense_reference(label, data) if accuracy.run_name(name) in DENSE_REFERENCE else
-                     data.poses)
-        if mount is not None:  # the scans' poses as the turned sensor's
-            reference = np.array([mount @ pose @ mount.T for pose in reference])
+        reference = playback.mounted(accuracy.dense_reference(label, data)
+                                     if accuracy.run_name(name) in DENSE_REFERENCE else data.poses)
         for level, lasers in [(level, 0) for level in levels] + [(1, b) for b in beams]:
             config = (accuracy.beams_config(lasers, overrides) if lasers else
                       line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))
