@@ -32,7 +32,7 @@ def problem(fit: Mapping[str, Any]) -> str | None:
     if outside > MAX_OUTSIDE_SHARE:
         return f"{outside:.0%} of the cloud's points lie outside the beams of {model}; {spans}"
     if fit["filled_rows"] < MIN_FILLED_SHARE * fit["band_rows"]:
-        rows_from = "its ring field" if fit["row_method"] == "ring" else "elevation"
+        rows_from = "its ring field" if fit["row_method"].startswith("ring") else "elevation"
         return (f"the cloud fills {fit['filled_rows']} of the {fit['band_rows']} rows between its top and bottom "
                 f"rows in {model}, its rows by {rows_from}; {spans}")
     return None

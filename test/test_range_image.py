@@ -82,6 +82,33 @@ def test_ring_field_is_used_and_bottom_first_rings_are_flipped():
         np.testing.assert_array_equal(ri["source_index"], auto["source_index"])
 
 
+# A VLP-16 numbers its lasers in firing order, -15, +1, -13, +3 ... deg: laser id 2k is the k-th beam from the bottom,
+# 2k + 1 the (8 + k)-th. Some drivers pass those ids on as the ring field.
+VLP16_LASER_OF_BEAM_FROM_BOTTOM = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15])
+
+
+def test_rings_numbered_in_firing_order_are_put_in_elevation_order():
+    """A ring field that numbers the lasers in firing order (interleaved elevations) gives the rows of the elevation
+    order: the same image as the rings numbered from the bottom beam, reported as `ring_by_elevation`."""
+    points = kitti_sequence("00").points(0)
+    rings = kitti_rings_from_wrap(points).astype(np.int32)  # 0 = top beam
+    keep = rings % 4 == 0  # 16 of the 64 lasers, as a VLP-16 over KITTI's field of view
+    xyz, from_top = np.ascontiguousarray(points[keep, :3]), rings[keep] // 4
+    from_bottom = (15 - from_top).astype(np.int32)
+    firing_order = VLP16_LASER_OF_BEAM_FROM_BOTTOM[from_bottom].astype(np.int32)
+    ordered = _core.organize_points(xyz, ring=from_bottom, sensor="vlp16")
+    interleaved = _core.organize_points(xyz, ring=firing_order, sensor="vlp16")
+    assert ordered["stats"]["row_method"] == "ring"
+    assert interleaved["stats"]["row_method"] == "ring_by_elevation"
+    np.testing.assert_array_equal(interleaved["valid"], ordered["valid"])
+    np.testing.assert_array_equal(interleaved["source_index"], ordered["source_index"])
+    # A ring without a point (a laser blocked) leaves the others in elevation order.
+    blocked = firing_order != VLP16_LASER_OF_BEAM_FROM_BOTTOM[5]
+    partial = _core.organize_points(np.ascontiguousarray(xyz[blocked]), ring=firing_order[blocked], sensor="vlp16")
+    rows = [np.median(elevation(partial["points"][r][partial["valid"][r]])) for r in range(16) if partial["valid"][r].any()]
+    assert len(rows) == 15 and np.all(np.diff(rows) < 0)
+
+
 def synthetic_vlp16(range_m: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
     el = np.radians(np.arange(-15, 16, 2.0))  # 16 beams
     az = np.radians(np.arange(1800) * 0.2 + 0.1)

@@ -54,7 +54,8 @@ class ElevationToRow {
 struct HalfElevations {
   double sum_lo = 0.0, sum_hi = 0.0;
   size_t n_lo = 0, n_hi = 0;
-  void add(bool low_half, double x, double y, double z) {
+  // Returns the point's sine of elevation.
+  double add(bool low_half, double x, double y, double z) {
     const double el = z / std::sqrt(x * x + y * y + z * z);
     if (low_half) {
       sum_lo += el;
@@ -63,6 +64,7 @@ struct HalfElevations {
       sum_hi += el;
       ++n_hi;
     }
+    return el;
   }
   // Ring indices may count from the bottom beam (Velodyne drivers) or the top one (Ouster, KITTI order):
   // flip when the first half of the rows is on average lower than the second.
@@ -177,6 +179,29 @@ int ring_order_scan(const T* data, size_t count, size_t stride, int rows, PointR
   return r + 1;
 }
 
+// The row of each ring when the rings' numbers do not follow their elevations (a driver numbering its lasers in firing
+// order: a VLP-16's interleave -15, +1, -13, +3 ... deg), else empty. The rows' V-lines run down the columns, so rows
+// must follow elevation: each ring present takes the row of its rank by mean elevation (highest first) among the
+// present rings' numbers. Rings numbered from the top or from the bottom are in order (HalfElevations flips those).
+std::vector<int> rows_by_elevation(const std::vector<double>& elevation_sum, const std::vector<std::size_t>& points) {
+  std::vector<int> present;
+  for (int k = 0; k < static_cast<int>(points.size()); ++k)
+    if (points[k] > 0) present.push_back(k);
+  auto mean = [&](int k) { return elevation_sum[k] / static_cast<double>(points[k]); };
+  bool falling = true, rising = true;
+  for (std::size_t j = 1; j < present.size(); ++j) {
+    falling = falling && mean(present[j]) <= mean(present[j - 1]);
+    rising = rising && mean(present[j]) >= mean(present[j - 1]);
+  }
+  if (falling || rising) return {};
+  std::vector<int> by_height = present;
+  std::stable_sort(by_height.begin(), by_height.end(), [&](int a, int b) { return mean(a) > mean(b); });
+  std::vector<int> row(points.size());
+  for (int k = 0; k < static_cast<int>(row.size()); ++k) row[k] = k;  // rings without a point keep theirs
+  for (std::size_t j = 0; j < present.size(); ++j) row[by_height[j]] = present[j];
+  return row;
+}
+
 }  // namespace
 
 template <typename T>
@@ -203,6 +228,8 @@ PointRows assign_rows(const T* data, std::size_t count, std::size_t stride, cons
   out.row_of.assign(count, -1);
   if (ring != nullptr) {
     HalfElevations half;
+    std::vector<double> elevation_sum(static_cast<std::size_t>(rows), 0.0);
+    std::vector<std::size_t> ring_points(static_cast<std::size_t>(rows), 0);
     for (size_t i = 0; i < count; ++i) {
       if (ring[i] < 0 || ring[i] >= rows)
         throw std::invalid_argument("ring: value " + std::to_string(ring[i]) + " at point " + std::to_string(i) +
@@ -212,9 +239,17 @@ PointRows assign_rows(const T* data, std::size_t count, std::size_t stride, cons
                                                      : "'"));
       out.row_of[i] = ring[i];
       const T* p = data + i * stride;
-      if (out.ok[i]) half.add(ring[i] < rows / 2, p[0], p[1], p[2]);
+      if (!out.ok[i]) continue;
+      elevation_sum[ring[i]] += half.add(ring[i] < rows / 2, p[0], p[1], p[2]);
+      ++ring_points[ring[i]];
     }
     st->row_method = "ring";
+    const std::vector<int> row_of_ring = rows_by_elevation(elevation_sum, ring_points);
+    if (!row_of_ring.empty()) {
+      for (auto& r : out.row_of) r = row_of_ring[r];
+      st->row_method = "ring_by_elevation";
+      return out;
+    }
     if (rows > 1 && half.upside_down())
       for (auto& r : out.row_of) r = rows - 1 - r;
     return out;

@@ -35,7 +35,7 @@ struct OrganizeStats {
   std::size_t out_of_range = 0;        // outside RangeLimits
   std::size_t outside_rows = 0;        // elevation outside the sensor's beams (elevation mode)
   std::size_t cell_collisions = 0;     // two points in one cell (and no free neighbour): the farther dropped
-  std::string row_method;              // "ring", "azimuth_wrap", "elevation", "organized", "depth"
+  std::string row_method;              // "ring", "ring_by_elevation", "azimuth_wrap", "elevation", "organized", "depth"
 };
 
 // Unorganized points: xyz at data[i * stride + 0..2] (stride in elements, >= 3, e.g. 4 for KITTI x,y,z,r).
