@@ -497,7 +497,10 @@ def test_a_held_velocity_the_points_contradict_frame_after_frame_does_not_persis
     assert all(s["degenerate"] for s in stats[first:]), [s["failure"] for s in stats]
 
 
-def test_a_2d_laser_cloud_mid_stream_is_refused_and_the_trajectory_stays():
+@pytest.mark.parametrize("at", [0, 3])
+def test_a_2d_laser_cloud_mid_stream_is_refused_and_the_trajectory_stays(at):
+    """Also as the stream's first cloud: taken as the first scan, it was the reference the next scan could not
+    register against."""
     data = kitti_sequence("07", 6)
     config = line_odom_core.load_config("kitti_hdl64", {"downsample": 6})
     clean = line_odom_core.Odometry(config)
@@ -505,7 +508,7 @@ def test_a_2d_laser_cloud_mid_stream_is_refused_and_the_trajectory_stays():
     odom = line_odom_core.Odometry(config)
     poses = []
     for i in range(len(data)):
-        if i == 3:
+        if i == at:
             points = data.points(i)
             ring = np.ascontiguousarray(points[kitti_rings(points) == 40, :3])
             ring[:, 2] = 0.0  # one ring in a plane: a 2D laser's scan
@@ -513,6 +516,19 @@ def test_a_2d_laser_cloud_mid_stream_is_refused_and_the_trajectory_stays():
                 odom.register_points(ring, float(data.times[i]) - 0.05)
         poses.append(odom.register_points(data.xyz(i), float(data.times[i])).pose)
     np.testing.assert_allclose(np.array(poses)[:, :3, 3], np.array(clean_poses)[:, :3, 3], atol=1e-9)
+
+
+def test_a_ring_field_of_one_value_is_refused_naming_it():
+    """A converter that fills the ring field with 0 puts the whole cloud in one row: refused at any frame, the error
+    naming the ring field; the same cloud without it registers."""
+    data = kitti_sequence("07", 2)
+    odom = line_odom_core.Odometry(level_config("16 lasers", {}))
+    for i in range(len(data)):
+        xyz, ring = sixteen_lasers(data, i)
+        refused = r"^ring: .*1 of the 16 rows.*lines\.min_points_v.*Without the ring field"
+        with pytest.raises(ValueError, match=refused):
+            odom.register_points(xyz, float(data.times[i]), ring=np.zeros_like(ring))
+        assert odom.register_points(xyz, float(data.times[i])).stats["registered"]
 
 
 def test_bad_validation_and_point_map_settings_are_refused_naming_them():

@@ -55,7 +55,8 @@ bool any_in_range(const Scalar* data, std::size_t count, std::size_t stride, con
 // frame before it touches the odometry's state. A scan with no point in range is held as a failed registration.
 template <typename Scalar>
 void check_fills_rows(const RangeImage& image, const Scalar* data, std::size_t count, std::size_t stride,
-                      const RangeLimits& limits, const SensorModel& sensor, int min_points_v) {
+                      const std::int32_t* ring, const RangeLimits& limits, const SensorModel& sensor,
+                      int min_points_v) {
   int rows = 0;
   for (int r = 0; r < image.rows; ++r)
     for (int c = 0; c < image.cols; ++c)
@@ -64,10 +65,16 @@ void check_fills_rows(const RangeImage& image, const Scalar* data, std::size_t c
         break;
       }
   if (rows >= min_points_v || (rows == 0 && !any_in_range(data, count, stride, limits))) return;
-  throw std::invalid_argument("xyz: the cloud's points fill " + std::to_string(rows) + " of the " +
-                              std::to_string(image.rows) + " rows the sensor model '" + sensor.name +
+  // A ring field holding one value (a converter that fills it with 0) puts a whole cloud in one row.
+  const std::string named =
+      ring != nullptr ? "ring: the ring field puts the cloud's points in " : "xyz: the cloud's points fill ";
+  const std::string hint = ring != nullptr ? " (a ring field of one value, or a 2D laser? Without the ring field the "
+                                             "rows come from the points' elevations)"
+                                           : " (a 2D laser or another sensor's cloud?)";
+  throw std::invalid_argument(named + std::to_string(rows) + " of the " + std::to_string(image.rows) +
+                              " rows the sensor model '" + sensor.name +
                               "' keeps of it; a scan needs points in at least lines.min_points_v = " +
-                              std::to_string(min_points_v) + " rows (a 2D laser or another sensor's cloud?)");
+                              std::to_string(min_points_v) + " rows" + hint);
 }
 
 
@@ -163,8 +170,8 @@ FrameResult Odometry::register_points(const Scalar* data, std::size_t count, std
   const int step = organize_step(stamp, guess != nullptr);
   const RangeImage image =
       organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits, step);
-  if (state_.frames > 0)
-    check_fills_rows(image, data, count, stride, config_.sensor.limits, sensor_, config_.features.lines.min_points_v);
+  check_fills_rows(image, data, count, stride, ring, config_.sensor.limits, sensor_,
+                   config_.features.lines.min_points_v);
   return register_range_image(image, stamp, watch.ms(), step, guess, rotation_guess);
 }
 
@@ -204,8 +211,9 @@ FrameResult Odometry::register_sweep(const Scalar* data, std::size_t count, std:
   RangeImage image = rows > 0 ? organize_cloud(data, rows, cols, stride, config_.sensor.limits)
                               : organize_points_downsampled(data, count, stride, ring, sensor_, config_.sensor.limits,
                                                             step);
-  if (rows == 0 && state_.frames > 0)
-    check_fills_rows(image, data, count, stride, config_.sensor.limits, sensor_, config_.features.lines.min_points_v);
+  if (rows == 0)
+    check_fills_rows(image, data, count, stride, ring, config_.sensor.limits, sensor_,
+                     config_.features.lines.min_points_v);
   SweepTimes sweep;
   sweep.velocity = sweep_velocity(stamp, guess, rotation_guess, sweep_rate);
   if (count > 0) {
