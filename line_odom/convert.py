@@ -282,7 +282,15 @@ def _ring(points: np.ndarray) -> np.ndarray | None:
     if "ring" not in _field_names(points):
         return None
     ring = _scalar_field(points, "ring")
-    if ring.dtype.kind not in "iu":
+    if ring.dtype.kind == "f":
+        # Some converters write every field as floats: whole numbers are rings all the same.
+        whole = np.isfinite(ring) & (ring == np.round(ring)) & (np.abs(ring) < 2**31)
+        if not whole.all():
+            bad = np.flatnonzero(~whole.reshape(-1))[0]
+            raise PointCloudError("fields[ring].datatype",
+                                  f"expected an integer type (UINT8/UINT16) or whole numbers, got {ring.dtype} value "
+                                  f"{ring.reshape(-1)[bad]} at point {bad}")
+    elif ring.dtype.kind not in "iu":
         raise PointCloudError("fields[ring].datatype", f"expected an integer type (UINT8/UINT16), got {ring.dtype}")
     return ring.astype(np.int32)
 

@@ -124,7 +124,8 @@ def _malformed_clouds():
     short_rows = _xyz_cloud()
     short_rows.row_step = 4
     int_x = _cloud(np.zeros(3, dtype=[("x", "i4"), ("y", "f4"), ("z", "f4")]))
-    float_ring = _cloud(np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("ring", "f4")]))
+    float_ring = _cloud(np.array([(1, 0, 0, 0.0), (2, 0, 0, 1.5), (3, 0, 0, 2.0)],
+                                 dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("ring", "f4")]))
     dup = _xyz_cloud()
     dup.fields = list(dup.fields) + [PointField(name="x", offset=0, datatype=7, count=1)]
     zero_step = _xyz_cloud()
@@ -138,7 +139,7 @@ def _malformed_clouds():
         ("unknown datatype", unknown_type, "fields[y].datatype", "unknown PointField datatype 42"),
         ("row_step too small", short_rows, "row_step", "less than width x point_step"),
         ("integer x", int_x, "fields[x].datatype", "FLOAT32 or FLOAT64"),
-        ("float ring", float_ring, "fields[ring].datatype", "integer type"),
+        ("fractional ring", float_ring, "fields[ring].datatype", "whole numbers, got float32 value 1.5 at point 1"),
         ("duplicate field", dup, "fields[3].name", "duplicate"),
         ("zero point_step", zero_step, "point_step", "is 0"),
     ]
@@ -153,6 +154,15 @@ def test_malformed_cloud_raises_value_error_naming_field(case):
     assert info.value.field == field, str(info.value)
     assert reason in str(info.value)
     assert str(info.value).startswith(f"PointCloud2.{field}: ")
+
+
+def test_a_float_ring_field_of_whole_numbers_is_read_as_rings():
+    """Some converters write every field as FLOAT32: rings all the same."""
+    pts = np.zeros(4, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("ring", "f4")])
+    pts["x"], pts["ring"] = np.arange(1, 5), [0, 3, 15, 7]
+    cloud = convert.pointcloud2_to_arrays(_cloud(pts))
+    assert cloud.ring.dtype == np.int32
+    np.testing.assert_array_equal(cloud.ring, [0, 3, 15, 7])
 
 
 def test_max_points_limit():
