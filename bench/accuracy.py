@@ -15,6 +15,7 @@
     .venv/bin/python bench/accuracy.py --only kitti --kitti-start 3    # each run from scan 3 (from 0): mid-drive
     .venv/bin/python bench/accuracy.py --only kitti --kitti-mount 10 15 0   # a sensor tilted 10 deg in roll, 15 in pitch
     .venv/bin/python bench/accuracy.py --only kitti --kitti-view 180   # a sensor seeing only the half ahead of it
+    .venv/bin/python bench/accuracy.py --only kitti --kitti-levels --kitti-beams 16 32 --kitti-firing-rings
 
 Prints mean/max RPE (translation m, rotation deg) per sequence and resolution for both methods, the paper's
 figures where it has them, and whether each goal is met; then, per row with KISS-ICP, the paired
@@ -248,6 +249,7 @@ class Playback:
     backwards: bool = False
     mount: tuple[float, float, float] | None = None  # roll, pitch, yaw (deg) of the sensor turned on its mount
     view: float | None = None  # deg of azimuth each scan keeps, centred ahead (x): the vehicle blocks the rest
+    firing_rings: bool = False  # the ring field numbered in firing order (firing_order_rings), not top to bottom
 
     def apply(self, data):
         data = data.played_backwards() if self.backwards else data
@@ -258,7 +260,7 @@ class Playback:
         return ((" backwards" if self.backwards else "") + (f" from {self.start}" if self.start else "") +
                 (f" x{self.stride}" if self.stride > 1 else "") +
                 (" mount {:g}/{:g}/{:g}".format(*self.mount) if self.mount else "") +
-                (f" view {self.view:g}" if self.view else ""))
+                (f" view {self.view:g}" if self.view else "") + (" firing rings" if self.firing_rings else ""))
 
     def mount_transform(self) -> np.ndarray | None:
         """The 4x4 rotation M taking the scans' frame to the turned sensor's: points p -> R p, a motion D -> M D M^T."""
@@ -276,15 +278,26 @@ class Playback:
         return poses if mount is None or poses is None else np.array([mount @ p @ mount.T for p in poses])
 
 
-def mounted_scan(data, i: int, beams: int, mount: np.ndarray | None,
-                 view: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def firing_order_rings(ring_from_top: np.ndarray, beams: int) -> np.ndarray:
+    """Rings numbered as a VLP-16 or an HDL-32E numbers its lasers, in firing order: laser 2k is the k-th beam from the
+    bottom, laser 2k + 1 the (beams / 2 + k)-th (-15, +1, -13, +3 ... deg on a VLP-16)."""
+    from_bottom = beams - 1 - ring_from_top
+    laser = np.where(from_bottom < beams // 2, 2 * from_bottom, 2 * (from_bottom - beams // 2) + 1)
+    return laser.astype(np.int32)
+
+
+def mounted_scan(data, i: int, beams: int, mount: np.ndarray | None, view: float | None = None,
+                 firing_rings: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Scan i as run_kitti feeds it: `beams` of its lasers (0: all), within `view` deg of azimuth centred ahead (None:
     all), turned by `mount` (mount_transform). A turned scan comes with its rings (from the file's order): a sensor's
-    rows are fixed to it, not to the scene's elevation angles."""
-    if not beams and mount is None:
+    rows are fixed to it, not to the scene's elevation angles. `firing_rings`: the rings numbered in firing order
+    (firing_order_rings)."""
+    if not beams and mount is None and not firing_rings:
         xyz, ring = data.xyz(i), None
     else:
         xyz, ring = kitti_beams(data, i, beams or 64)
+        if firing_rings:
+            ring = firing_order_rings(ring, beams or 64)
     if view is not None:
         seen = np.abs(np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))) <= 0.5 * view
         xyz, ring = np.ascontiguousarray(xyz[seen]), None if ring is None else ring[seen]
@@ -316,7 +329,7 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
     genz_odom = genz_odometry(100.0) if genz_run else None
     mount = playback.mount_transform()
     for i in range(len(data)):
-        xyz, ring = mounted_scan(data, i, beams, mount, playback.view)
+        xyz, ring = mounted_scan(data, i, beams, mount, playback.view, playback.firing_rings)
         t0 = time.perf_counter()
         result = odom.register_points(xyz, float(data.times[i]), ring=ring)
         lo.ms.append((time.perf_counter() - t0) * 1e3)
@@ -742,7 +755,8 @@ def print_seed_spread(rows: list[Row], seeds: int, args, overrides: dict) -> Non
 
 
 def add_playback_arguments(parser: argparse.ArgumentParser) -> None:
-    """--kitti-stride, --kitti-start, --kitti-backwards, --kitti-mount, --kitti-view: how each KITTI run is played."""
+    """--kitti-stride, --kitti-start, --kitti-backwards, --kitti-mount, --kitti-view, --kitti-firing-rings: how each
+    KITTI run is played."""
     parser.add_argument("--kitti-stride", type=int, default=1, metavar="K",
                         help="every K-th scan of each run, stamps kept: each scan moves K times as far (rows named "
                              "'<run> xK'; the runs beyond the speeds they hold)")
@@ -759,6 +773,9 @@ def add_playback_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kitti-view", type=float, metavar="DEG",
                         help="every scan kept to the points within DEG of azimuth centred ahead (x), DEG in (0, 360]: "
                              "a sensor the vehicle blocks behind it (rows named '<run> view DEG')")
+    parser.add_argument("--kitti-firing-rings", action="store_true",
+                        help="every scan given its ring field numbered in firing order, as a VLP-16 or an HDL-32E "
+                             "numbers its lasers, not from the top beam (rows named '<run> firing rings')")
 
 
 def playback_from(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Playback:
@@ -770,7 +787,7 @@ def playback_from(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     if args.kitti_view is not None and not 0.0 < args.kitti_view <= 360.0:
         parser.error(f"--kitti-view {args.kitti_view:g}: expected degrees of azimuth in (0, 360]")
     return Playback(args.kitti_stride, args.kitti_start, args.kitti_backwards,
-                    tuple(args.kitti_mount) if args.kitti_mount else None, args.kitti_view)
+                    tuple(args.kitti_mount) if args.kitti_mount else None, args.kitti_view, args.kitti_firing_rings)
 
 
 def main(argv=None) -> int:

@@ -89,7 +89,7 @@ def run_kitti(runs, levels, beams, overrides, playback: accuracy.Playback = accu
             odom = line_odom_core.Odometry(config)
             results = []
             for i in range(len(data)):
-                xyz, ring = accuracy.mounted_scan(data, i, lasers, mount, playback.view)
+                xyz, ring = accuracy.mounted_scan(data, i, lasers, mount, playback.view, playback.firing_rings)
                 results.append(odom.register_points(xyz, float(data.times[i]), ring=ring))
             summarize(label, f"{lasers}b" if lasers else level_name(level), results, reference)
 

@@ -114,6 +114,22 @@ def test_accuracy_keeps_each_scan_to_a_view_ahead():
     assert proc.returncode != 0 and "--kitti-view 0" in proc.stderr
 
 
+def test_accuracy_numbers_the_rings_in_firing_order():
+    """--kitti-firing-rings: the ring field numbered as a VLP-16 numbers its lasers (laser 2k the k-th beam from the
+    bottom, 2k + 1 the (8 + k)-th); the engine puts them in elevation order, so the row is the one of the rings
+    numbered from the top."""
+    from_top = np.arange(16)
+    laser = accuracy.firing_order_rings(from_top, 16)
+    assert laser.tolist() == [15, 13, 11, 9, 7, 5, 3, 1, 14, 12, 10, 8, 6, 4, 2, 0]
+    data = accuracy.open_run("07", 3)
+    xyz, ring = accuracy.mounted_scan(data, 1, 16, None, None, True)
+    plain_xyz, plain_ring = accuracy.mounted_scan(data, 1, 16, None)
+    assert np.array_equal(xyz, plain_xyz) and np.array_equal(ring, laser[plain_ring])
+    firing = accuracy.run_kitti("07", 1, 3, False, {}, 16, accuracy.Playback(firing_rings=True))
+    plain = accuracy.run_kitti("07", 1, 3, False, {}, 16)
+    assert firing.sequence == "07 firing rings" and firing.lo == plain.lo
+
+
 def test_accuracy_seed_spread_runs_a_directory_row_again(tmp_path):
     """--seeds re-runs each row as it was opened: a --data directory (not a shared run of its base name), played as
     its row was."""
