@@ -77,6 +77,7 @@ PROBLEM_COUNTERS = (
     ("tf_rejected", "/tf_static transform(s) rejected"),
     ("initial_poses_rejected", "initialpose message(s) rejected"),
     ("point_times_ignored", "frame(s) registered without deskewing (unusable point times)"),
+    ("ring_fields_ignored", "frame(s) whose ring field held one value (rows from elevation)"),
     ("clouds_not_fitting_sensor", "cloud(s) not fitting the sensor model (sensor_fit)"),
 )
 ENGINE_STATS = (

@@ -82,7 +82,8 @@ class OdometryProcessor:
         self.counters = collections.Counter(
             frames_received=0, frames_processed=0, frames_dropped=0, frames_malformed=0, frames_too_large=0,
             frames_failed=0, frames_duplicate=0, resets=0, frames_deskewed=0, frames_deskewed_again=0,
-            point_times_ignored=0, clouds_not_fitting_sensor=0, initial_poses_rejected=0, frames_lost_in_transport=0)
+            point_times_ignored=0, ring_fields_ignored=0, clouds_not_fitting_sensor=0, initial_poses_rejected=0,
+            frames_lost_in_transport=0)
         self.fusion = Fusion(self.settings, self.config["registration.max_translation"],
                              self.config["registration.max_rotation_deg"], reject=self._reject, count=self._count,
                              info=self._info)
@@ -330,6 +331,13 @@ class OdometryProcessor:
         except convert.ConversionError as err:
             self._reject("frames_malformed", str(err))
             return None
+        one_ring = cloud.ring is not None and cloud.ring.size > 1 and cloud.ring.min() == cloud.ring.max()
+        if one_ring and not cloud.organized:
+            # A ring field of one value (a converter filling it with 0) would put the whole cloud in one row, which the
+            # engine refuses: the rows come from the points' elevations instead.
+            self._reject("ring_fields_ignored", f"PointCloud2.fields[ring]: one value ({int(cloud.ring.flat[0])}) for "
+                                                f"all {cloud.ring.size} points", "rows from the points' elevations")
+            cloud = dataclasses.replace(cloud, ring=None)
         if not cloud.organized:
             self._check_sensor(cloud)
         try:

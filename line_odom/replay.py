@@ -396,7 +396,8 @@ def _ground_truth_file(path: str | Path, run: ReplayRun) -> evaluation.Trajector
 
 
 def _input_metrics(run: ReplayRun, info: Mapping[str, Any]) -> dict:
-    keys = ("frames_with_ring", "frames_with_time", "frames_deskewed", "point_times_ignored", "rows_from")
+    keys = ("frames_with_ring", "frames_with_time", "frames_deskewed", "point_times_ignored", "ring_fields_ignored",
+            "rows_from")
     return {**{k: run.counters[k] for k in keys if k in run.counters}, "input": dict(info)}
 
 

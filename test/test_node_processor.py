@@ -489,3 +489,29 @@ def test_the_node_imports_no_offline_tooling():
                "line_odom.batch", "line_odom.evaluation", "line_odom.sim", "rosbags")
     assert "line_odom.processor" in loaded
     assert [m for m in loaded if m.startswith(offline)] == []
+
+
+def test_a_ring_field_of_one_value_is_ignored_counted_and_logged():
+    """Some converters fill the ring field with 0: the cloud would lie in one row, which the engine refuses. The node
+    registers it with the rows from the points' elevations, as a cloud without the field, and counts it."""
+    from line_odom.bags import kitti_rings
+    from line_odom.datasets import kitti_sequence
+
+    data = kitti_sequence("07", 3)
+    overrides = {"sensor.model": "uniform", "sensor.rows": 16, "sensor.max_elevation_deg": 2.0,
+                 "sensor.min_elevation_deg": -24.9}
+    zeroed, plain = (OdometryProcessor.from_parameters("vlp16", overrides) for _ in range(2))
+    for i in range(len(data)):
+        points = data.points(i)
+        keep = kitti_rings(points) % 4 == 0
+        xyz = np.ascontiguousarray(points[keep, :3])
+        stamp = 1.0 + float(data.times[i])
+        with_zero_ring = convert.pointcloud2_from_xyz(xyz, ring=np.zeros(len(xyz), np.uint16), frame_id="lidar",
+                                                      stamp=stamp)
+        out = zeroed.process_pointcloud(with_zero_ring)
+        reference = plain.process_pointcloud(convert.pointcloud2_from_xyz(xyz, frame_id="lidar", stamp=stamp))
+        assert out is not None and out.stats["registered"]
+        np.testing.assert_array_equal(out.T_odom_base, reference.T_odom_base)
+    assert zeroed.counters["ring_fields_ignored"] == len(data) and zeroed.counters["frames_failed"] == 0
+    assert "fields[ring]: one value (0)" in zeroed.last_error
+    assert plain.counters["ring_fields_ignored"] == 0
