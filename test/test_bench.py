@@ -130,6 +130,21 @@ def test_accuracy_numbers_the_rings_in_firing_order():
     assert firing.sequence == "07 firing rings" and firing.lo == plain.lo
 
 
+def test_accuracy_jitters_the_stamps():
+    """--kitti-stamp-jitter: every stamp moved by a seeded draw within the milliseconds given, the poses judged against
+    kept; rows named after it; a jitter of half a scan's interval or more is refused."""
+    data = accuracy.open_run("07", 4)
+    jittered = accuracy.Playback(stamp_jitter_ms=5.0).apply(data)
+    moved = np.asarray(jittered.times) - np.asarray(data.times)
+    assert 0.0 < np.abs(moved).max() <= 5e-3 and np.array_equal(jittered.poses, data.poses)
+    np.testing.assert_array_equal(accuracy.Playback(stamp_jitter_ms=5.0).apply(data).times, jittered.times)
+    assert accuracy.Playback(stamp_jitter_ms=5.0).suffix() == " jitter 5 ms"
+    proc = subprocess.run([sys.executable, "bench/accuracy.py", "--only", "kitti", "--kitti", "07", "--kitti-levels",
+                           "6", "--kitti-beams", "--kitti-stamp-jitter", "60", "--no-kiss"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0 and "--kitti-stamp-jitter 60" in proc.stderr
+
+
 def test_accuracy_seed_spread_runs_a_directory_row_again(tmp_path):
     """--seeds re-runs each row as it was opened: a --data directory (not a shared run of its base name), played as
     its row was."""
