@@ -147,6 +147,12 @@ def beams_config(beams: int, overrides: dict):
                                                 **overrides})
 
 
+def kitti_config(level: int, beams: int, overrides: dict):
+    """The preset a KITTI row runs with: kitti_hdl64 at downsampling step `level`, or (beams > 0) beams_config."""
+    return (beams_config(beams, overrides) if beams else
+            line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))
+
+
 def kitti_beams(data, i: int, beams: int) -> tuple[np.ndarray, np.ndarray]:
     """Scan i with every (64 / beams)-th laser and all its azimuth steps, as a `beams`-beam LiDAR gives it: (xyz,
     ring in [0, beams))."""
@@ -280,6 +286,10 @@ class Playback:
         m[:3, :3] = Rotation.from_euler("xyz", self.mount, degrees=True).as_matrix()
         return m
 
+    def scan(self, data, i: int, beams: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Scan i of the played run as run_kitti feeds it (mounted_scan with this playback's mount, view and rings)."""
+        return mounted_scan(data, i, beams, self.mount_transform(), self.view, self.firing_rings)
+
     def mounted(self, poses: np.ndarray | None) -> np.ndarray | None:
         """The scans' poses as the turned sensor's (M P M^T; as they are without a mount)."""
         mount = self.mount_transform()
@@ -327,17 +337,14 @@ def run_kitti(seq: str, level: int, frames: int | None, kiss: bool, overrides: d
         raise SystemExit(f"{seq}: {len(data)} scan to play (--kitti-start {playback.start}, --kitti-stride "
                          f"{playback.stride}); expected at least 2")
     label = run_name(seq) + playback.suffix()
-    config = (beams_config(beams, overrides) if beams else
-              line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))
-    odom = line_odom_core.Odometry(config)
+    odom = line_odom_core.Odometry(kitti_config(level, beams, overrides))
     lo = Run([], [], [])
     kiss_run = Run([], [], []) if kiss else None
     kiss_odom = kiss_odometry(100.0) if kiss else None
     genz_run = Run([], [], []) if kiss and genz_available() else None
     genz_odom = genz_odometry(100.0) if genz_run else None
-    mount = playback.mount_transform()
     for i in range(len(data)):
-        xyz, ring = mounted_scan(data, i, beams, mount, playback.view, playback.firing_rings)
+        xyz, ring = playback.scan(data, i, beams)
         t0 = time.perf_counter()
         result = odom.register_points(xyz, float(data.times[i]), ring=ring)
         lo.ms.append((time.perf_counter() - t0) * 1e3)

@@ -77,19 +77,16 @@ def summarize(name: str, level: str, results: list, reference: np.ndarray, valid
 def run_kitti(runs, levels, beams, overrides, playback: accuracy.Playback = accuracy.Playback()) -> None:
     """Each run as bench/accuracy.py reads it, plays it and thins it (levels of kitti_hdl64, `beams` of its lasers with
     vlp16)."""
-    mount = playback.mount_transform()
     for name in runs:
         data = playback.apply(accuracy.open_run(name, None))
         label = f"KITTI {accuracy.run_name(name)}{playback.suffix()}"
         reference = playback.mounted(accuracy.dense_reference(label, data)
                                      if accuracy.run_name(name) in DENSE_REFERENCE else data.poses)
         for level, lasers in [(level, 0) for level in levels] + [(1, b) for b in beams]:
-            config = (accuracy.beams_config(lasers, overrides) if lasers else
-                      line_odom_core.load_config("kitti_hdl64", {"downsample": level, **overrides}))
-            odom = line_odom_core.Odometry(config)
+            odom = line_odom_core.Odometry(accuracy.kitti_config(level, lasers, overrides))
             results = []
             for i in range(len(data)):
-                xyz, ring = accuracy.mounted_scan(data, i, lasers, mount, playback.view, playback.firing_rings)
+                xyz, ring = playback.scan(data, i, lasers)
                 results.append(odom.register_points(xyz, float(data.times[i]), ring=ring))
             summarize(label, f"{lasers}b" if lasers else level_name(level), results, reference)
 

@@ -16,7 +16,8 @@ struct SensorFit {
   int rows = 0;                    // its rows
   double max_elevation_deg = 0.0;  // its top and bottom beams
   double min_elevation_deg = 0.0;
-  std::string row_method;          // how the rows were found ("ring", "ring_by_elevation", "azimuth_wrap", "elevation"); empty if not
+  // How the rows were found ("ring", "ring_by_elevation", "azimuth_wrap", "elevation"); empty if not.
+  std::string row_method;
   std::size_t points = 0;          // finite, non-zero points within the range limits
   std::size_t outside_rows = 0;    // of those, outside the model's beams (rows by elevation)
   int filled_rows = 0;             // rows holding a point in at least 1 % of the model's columns
