@@ -211,6 +211,36 @@ def test_a_good_frames_covariance_covers_the_point_maps_alignment():
     assert np.all(per_frame[good] < 22.46), per_frame
 
 
+def test_a_flagged_frames_covariance_covers_the_prediction():
+    """The stop-and-go drive every 4th scan at 1/64 (0.9 m a scan): frame 2 registers 0.19 m where the scans moved 0.94
+    m and the prediction, the motion model's independent measurement, says 0.65 m. It is flagged (the lines' own test
+    leaves directions unconfirmed, x among them), and its covariance claimed 0.04 m along the travel: NEES 336 against
+    the dense registration of the scans. A flagged frame registered in full covers the prediction along the directions
+    its lines left unconfirmed: the prediction lies within one standard deviation there, and frame 2 within the 99.9 %
+    chi-square bound of its covariance (6 degrees of freedom)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    import accuracy
+
+    data = accuracy.open_run(accuracy.STOP_AND_GO, 25).every_kth_scan(4)
+    config = line_odom_core.load_config("kitti_hdl64", {"downsample": 8})
+    odom = line_odom_core.Odometry(config)
+    results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in range(len(data))]
+    covered = [i for i in range(2, len(results)) if results[i].stats["registered"] and results[i].degenerate
+               and results[i].stats["held_directions"] == 0]
+    assert 2 in covered, [r.stats["failure"] for r in results]
+    for i in covered:
+        # Constant velocity over equal stamp intervals: the prediction is the last frame's motion.
+        apart = motion_errors(results[i - 1].delta[None], results[i].delta[None])[0]
+        unconfirmed = np.array(results[i].stats["observability"]) < config["validation.significance"]
+        assert unconfirmed[0], results[i].stats["observability"]
+        apart[~unconfirmed] = 0.0
+        assert apart @ np.linalg.solve(results[i].covariance, apart) <= 1.0 + 1e-9, i
+    reference = accuracy.dense_reference("stop_and_go every 4th scan, its first 7", data)
+    truth = np.linalg.inv(reference[1]) @ reference[2]
+    assert np.linalg.norm(results[2].delta[:3, 3] - truth[:3, 3]) > 0.5
+    assert nees(motion_errors(results[2].delta[None], truth[None]), results[2].covariance[None])[0] < 22.46
+
+
 # Mean NEES / 6 of the fused covariance at full resolution (1 = consistent; bench/covariance.py): measured 1.02 on 04
 # and 0.18 on 07; before the fusion's covariance was (P^-1 + C^-1)^-1 they were 87 and 10.
 @pytest.mark.parametrize("seq", ["04", "07"])

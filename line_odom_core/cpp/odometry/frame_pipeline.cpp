@@ -24,6 +24,16 @@ void add_times(const FrameStats& aside, FrameStats* st) {
 
 }  // namespace
 
+Mat6 Odometry::unconfirmed(const FrameStats& st) const {
+  if (!st.registered) return Mat6::Identity();
+  // Held in part: the held directions carry the fallback variance already, the others are the lines' measurement.
+  if (st.held_directions > 0) return Mat6::Zero();
+  Mat6 axes = Mat6::Zero();
+  for (int k = 0; k < 6; ++k)
+    if (!(st.observability[k] >= config_.validation.significance)) axes(k, k) = 1.0;
+  return axes;
+}
+
 FrameResult Odometry::register_image(const RangeImage& image, double stamp, double organize_ms, int organized_step,
                                      const RigidTransform* guess, const Mat3* rotation_guess, SweepTimes* sweep) {
   Stopwatch total;
@@ -51,14 +61,19 @@ FrameResult Odometry::register_image(const RangeImage& image, double stamp, doub
       correct_sweep_again(&scan, in, &outcome, &st);
       aligned_before.reset();
     }
-    // 5. Validation. 6. Fusion with the motion model. 7. The points' refinement. 8. A frame reported as good: its
-    // covariance widened to cover the point map's alignment (after the refinement, which weighs the points by the
-    // lines' own). 9. The pose and the map.
+    // 5. Validation. 6. Fusion with the motion model. 7. The points' refinement. 8. The covariance widened to cover
+    // the other measurements of the motion (after the refinement, which weighs the points by the lines' own): the
+    // point map's alignment where it judged a frame reported as good; the prediction where a flagged frame's lines
+    // left directions unconfirmed (elsewhere the difference is their measurement of a changed velocity). 9. The pose
+    // and the map.
     const Validated validated = validate(&scan, in, aligned_before, &outcome, &st);
     const FusedMotion fused = fuse(outcome, in, validated, &result);
     refine_on_points(scan, fused, &result);
-    if (validated.judged && st.registered && !st.degenerate)
+    const bool reported_good = st.registered && !st.degenerate;
+    if (validated.judged && reported_good)
       result.covariance = covering(result.covariance, result.delta, validated.by_points);
+    if (!reported_good)
+      result.covariance = covering(result.covariance, result.delta, in.prediction, unconfirmed(st));
     advance(scan, ground, in, fused, validated, &result);
   }
   result.pose = state_.pose;

@@ -113,8 +113,8 @@ FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& predic
   return out;
 }
 
-Mat6 covering(const Mat6& covariance, const RigidTransform& delta, const RigidTransform& other) {
-  const Vec6 difference = motion_difference(other, delta);
+Mat6 covering(const Mat6& covariance, const RigidTransform& delta, const RigidTransform& other, const Mat6& along) {
+  const Vec6 difference = along * motion_difference(other, delta);
   if (!difference.allFinite()) return covariance;
   return covariance + difference * difference.transpose();
 }

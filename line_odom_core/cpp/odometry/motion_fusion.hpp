@@ -37,6 +37,8 @@ FusedMotion fuse_motion(const PassOutcome& outcome, const RigidTransform& predic
 // `covariance` of `delta` widened to cover `other`, an independent measurement of the same motion: plus d d^T, d the
 // difference of the two (motion_difference). Two independent estimates differ by the sum of their errors, so their
 // difference is a sample of the error the covariance must allow; with it, `other` lies within one standard deviation.
-Mat6 covering(const Mat6& covariance, const RigidTransform& delta, const RigidTransform& other);
+// `along` (a projector onto directions of x y z rx ry rz): only the difference along those.
+Mat6 covering(const Mat6& covariance, const RigidTransform& delta, const RigidTransform& other,
+              const Mat6& along = Mat6::Identity());
 
 }  // namespace line_odom

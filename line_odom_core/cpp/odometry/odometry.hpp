@@ -158,6 +158,9 @@ class Odometry {
   // The frame's motion and covariance, fused with the motion model; unconfirmed directions flagged and inflated.
   FusedMotion fuse(const PassOutcome& outcome, const FrameInputs& in, const Validated& validated,
                    FrameResult* result) const;
+  // Onto the directions of a flagged frame's motion that its lines left unconfirmed: all of a frame not registered,
+  // none of one held in part, else those the lines' own test left under validation.significance.
+  Mat6 unconfirmed(const FrameStats& st) const;
   // The point-to-plane refinement (points.*) of a motion registered in full.
   void refine_on_points(const FrameFeatures& scan, const FusedMotion& fused, FrameResult* result);
   // The pose composed, the motion model and the sweep's trend told the motion, the scan entered into the point map.
