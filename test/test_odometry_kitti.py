@@ -187,15 +187,21 @@ def test_fusion_with_the_motion_prior_gives_the_information_form_covariance():
         assert np.linalg.eigvalsh(bound - fused.covariance).min() > -1e-12 * np.abs(bound).max()
 
 
+def bench_accuracy():
+    """bench/accuracy.py (bench/ is not a package): the shared runs, their presets and their dense registration."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    import accuracy
+
+    return accuracy
+
+
 def test_a_good_frames_covariance_covers_the_point_maps_alignment():
     """The stop-and-go drive with 16 lasers follows a car to a stop: its frames 2-4, reported as good, register 0.14-0.15
     m a scan short of the scans' own motion (the lines on the car ahead) with a standard deviation along it of 0.02 m,
     NEES 42-54 against the dense registration of the scans; the point map's alignment, an independent measurement,
     lies 0.05-0.08 m beyond them. Widened to cover it, every frame reported as good lies within the 99.9 % chi-square
     bound of its covariance (6 degrees of freedom)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-    import accuracy
-
+    accuracy = bench_accuracy()
     data = accuracy.open_run(accuracy.STOP_AND_GO, 6)
     odom = line_odom_core.Odometry(accuracy.beams_config(16, {}))
     results = []
@@ -218,11 +224,9 @@ def test_a_flagged_frames_covariance_covers_the_prediction():
     the dense registration of the scans. A flagged frame registered in full covers the prediction along the directions
     its lines left unconfirmed: the prediction lies within one standard deviation there, and frame 2 within the 99.9 %
     chi-square bound of its covariance (6 degrees of freedom)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-    import accuracy
-
+    accuracy = bench_accuracy()
     data = accuracy.open_run(accuracy.STOP_AND_GO, 25).every_kth_scan(4)
-    config = line_odom_core.load_config("kitti_hdl64", {"downsample": 8})
+    config = accuracy.kitti_config(8, 0, {})
     odom = line_odom_core.Odometry(config)
     results = [odom.register_points(data.xyz(i), float(data.times[i])) for i in range(len(data))]
     covered = [i for i in range(2, len(results)) if results[i].stats["registered"] and results[i].degenerate
