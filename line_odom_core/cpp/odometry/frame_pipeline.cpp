@@ -306,7 +306,8 @@ void Odometry::advance(const FrameFeatures& scan, const Plane* ground, const Fra
   if (s.point_map.enabled() && (at_pose || validated.judged) && (in.sweep == nullptr || !in.first_motion)) {
     Stopwatch stage;
     if (!at_pose) s.point_map.reanchor(s.pose, place_on_map(validated, previous_place, result->delta));
-    s.point_map.add(scan.points, ground, s.pose, in.prediction, result->delta);
+    s.point_map.add(scan.points, ground, s.pose, in.prediction, result->delta,
+                    at_pose ? validated.unconfirmed_place : 0);
     st.map_entry = at_pose ? "pose" : "points";
     st.ms.validation += stage.ms();
   } else {

@@ -206,6 +206,8 @@ struct MotionValidation::Judgement {
   int unpinned = 0;  // open directions the lines' own test leaves open and the points put elsewhere
   int contradicted = 0;  // directions the lines' own test confirms and the points clearly fit elsewhere
   int two_way = 0;   // open translations the points put the other way while fitting the lines' motion as well
+  int unconfirmed_place = 0;  // open directions the lines' own test leaves open, along which the last scan sits on the
+                              // map where its own unconfirmed lines put it
 };
 
 Observability MotionValidation::observe(const ValidationFrame& frame, const PassOutcome& outcome,
@@ -231,7 +233,7 @@ void MotionValidation::open_directions(const ValidationFrame& frame, const PassO
   int& unpinned = judgement->unpinned;
   int& two_way = judgement->two_way;
   int& contradicted = judgement->contradicted;
-  reversed = unpinned = two_way = contradicted = judgement->leaning = 0;
+  reversed = unpinned = two_way = contradicted = judgement->leaning = judgement->unconfirmed_place = 0;
   // The lines alone judge a first motion: the map then holds one scan, whose sampling a sparse scan follows (its rings
   // sit where that scan's rings sat when standing still), so its alignment leans to standing still. Leaning, it falls
   // short of a motion but does not reverse it: only a first motion the points put on the other side of standing still
@@ -303,7 +305,13 @@ void MotionValidation::open_directions(const ValidationFrame& frame, const PassO
   }
   // Where the points lean, they cannot tell the lines' motion from standing still: the lines' own test decides there.
   judgement->leaning = obs.unobserved & lean;
-  judgement->open = judged ? open | judgement->leaning : obs.unobserved | open;
+  // Along the directions the last scan entered the map at its lines' unconfirmed motion, the points' alignment agreeing
+  // with the lines may only repeat that motion (a first motion short of the car's, then confirmed by the next scan's
+  // alignment to the scan it placed): no confirmation there, the lines' own test decides. (Where the alignment
+  // disagrees, the map's other scans put the scan elsewhere: that is evidence, judged above.)
+  if (judged)
+    judgement->unconfirmed_place = obs.unobserved & point_map.last_scan_unconfirmed() & ~open & ~judgement->leaning;
+  judgement->open = judged ? open | judgement->leaning | judgement->unconfirmed_place : obs.unobserved | open;
 }
 
 Validated MotionValidation::validate(const ValidationFrame& frame, const PointMapTracker& point_map,
@@ -394,7 +402,10 @@ void MotionValidation::settle_open_directions(const ValidationFrame& frame, cons
   const Observability& obs = judgement.obs;
   const int open = judgement.open;
   const int reversed = judgement.reversed, leaning = judgement.leaning, unpinned = judgement.unpinned,
-            two_way = judgement.two_way, contradicted = judgement.contradicted;
+            two_way = judgement.two_way, contradicted = judgement.contradicted,
+            unconfirmed_place = judgement.unconfirmed_place;
+  // The directions the points cannot judge: the lines' motion stands there (flagged where open).
+  const int lines_decide = leaning | unconfirmed_place;
 
   // Where the lines leave a direction open that the points put elsewhere, their valley (a turn traded for a shift) is
   // held there too: held on that axis alone, the lines slide along the rest of it.
@@ -413,6 +424,9 @@ void MotionValidation::settle_open_directions(const ValidationFrame& frame, cons
     std::snprintf(why, sizeof why, "the lines' motion is not confirmed along %s (%s)", axes_text(open).c_str(),
                   (open & reversed) != 0    ? "the point map's alignment moves the other way"
                   : (open & ~two_way) == 0  ? "the point map fits the lines' motion and its own the other way alike"
+                  : (open & ~unconfirmed_place) == 0
+                      ? "McNemar z under validation.significance, the last scan on the point map where its own "
+                        "unconfirmed lines put it"
                   : (open & ~leaning) == 0  ? "McNemar z under validation.significance, the point map's alignment "
                                               "leaning to standing still"
                   : (open & ~unpinned) == 0 ? "McNemar z under validation.significance, the point map's alignment "
@@ -425,15 +439,17 @@ void MotionValidation::settle_open_directions(const ValidationFrame& frame, cons
     // A first motion the lines confirm along no axis is the points' where they showed the way the scan travelled.
     const bool points_travelled = aligned && travelled && open == kAllAxes;
     if ((!judged && !frame.guessed && (open & reversed) == 0 && !points_travelled) ||
-        (judged && (open & ~leaning & ~two_way) == 0)) {
+        (judged && (open & ~lines_decide & ~two_way) == 0)) {
       // Flagged: nothing better to hold the translations at (the prediction; a one-scan map's lean, not reversal; a
-      // judging map's alignment leaning to standing still where the lines do not pin the motion down).
+      // judging map's alignment leaning to standing still, or agreeing with lines that placed its last scan, where the
+      // lines do not pin the motion down). A frame the map did not judge enters it at the lines' motion so flagged.
       // A first motion's rotations the lines leave open are the points', where they resolve them: the lines' rotation
       // there is one end of a valley they cannot tell apart (a turn traded for a sideways shift along a street's
       // walls); the points measured it. Not the translations, which lean to standing still; but the side of the travel
       // moves with the turn along that valley, as far as the lines' own covariance puts it with the turn.
       outcome->failure = why;
       const int turns = frame.first_motion ? open & kRotationAxes & points_resolve : 0;
+      if (!judged) out->unconfirmed_place = open & ~turns;
       if (turns != 0) {
         const Vec3 side = side_of_travel(outcome->best.t, ground_up(*frame.current), tolerance);
         outcome->best = turned_along_valley(outcome->best, by_points, turns, outcome->stats.covariance, side);
@@ -445,7 +461,7 @@ void MotionValidation::settle_open_directions(const ValidationFrame& frame, cons
       out->reference = by_points;
       out->held_at_points = placed_by_points;
     } else if ((aligned || frame.guessed) &&
-               lines_.hold_directions(corr, LinePairTable(corr), reference, (open & ~leaning) | turns_held,
+               lines_.hold_directions(corr, LinePairTable(corr), reference, (open & ~lines_decide) | turns_held,
                                       unpinned != 0 ? &valley : nullptr, outcome)) {
       outcome->failure = std::string(why) + (aligned ? ": held at the point map's alignment" : ": held at the guess") +
                          (turns_held != 0 ? ", with " + axes_text(turns_held) : "");

@@ -58,6 +58,9 @@ struct Validated {
   bool judged = false;
   RigidTransform by_points;
   int resolved = 0;
+  // A frame the map did not judge, flagged at its lines' motion: the axes (bits) along which nothing confirmed it, where
+  // the scan sits on the map at the lines' motion alone (PointMapTracker::last_scan_unconfirmed).
+  int unconfirmed_place = 0;
 };
 
 // Where a judged frame whose motion was partly held at the prediction sits on the point map, from the previous scan's

@@ -156,8 +156,9 @@ double PointMapTracker::fit_advantage(const std::vector<Vec3>& points, const Rig
 }
 
 void PointMapTracker::add(const std::vector<Vec3>& points, const Plane* ground, const RigidTransform& pose,
-                          const RigidTransform& predicted, const RigidTransform& registered) {
+                          const RigidTransform& predicted, const RigidTransform& registered, int unconfirmed) {
   if (!options_.enabled) return;
+  last_scan_unconfirmed_ = unconfirmed;
   model_error_.add(predicted, registered);
   map_.add(voxel_downsample(points, kMapVoxel * voxel_), place_of(pose), max_range_,
            ground_first_motion_ ? ground : nullptr);

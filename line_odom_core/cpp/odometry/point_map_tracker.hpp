@@ -21,6 +21,9 @@ class PointMapTracker {
   // Whether the last scan has a place on the map: it entered it. Without one, the map's place relative to the next
   // scan is unknown.
   bool holds_last_scan() const { return holds_last_scan_; }
+  // The axes of xi (bits) along which the last scan's place on the map is its lines' motion that nothing confirmed
+  // (add's `unconfirmed`): there the next scan's alignment agreeing with its lines may only repeat that motion.
+  int last_scan_unconfirmed() const { return holds_last_scan_ ? last_scan_unconfirmed_ : 0; }
   // The width of the alignment's kernel now (alignment_kernel_scale): the basin of a start.
   double alignment_kernel_scale() const;
   // Where a scan at odometry pose `pose` sits on the map: the map is the odometry frame until a scan whose motion was
@@ -49,9 +52,9 @@ class PointMapTracker {
                        const RigidTransform& b) const;
   // A frame done: its points at odometry pose `pose` (at place_of(pose) on the map), measured over `ground` (nullable,
   // sensor frame; kept unless point_map.ground_planes is never); `predicted` against `registered` tells the motion
-  // model's error.
+  // model's error; `unconfirmed`: the axes (bits) along which nothing confirmed `pose`'s motion.
   void add(const std::vector<Vec3>& points, const Plane* ground, const RigidTransform& pose,
-           const RigidTransform& predicted, const RigidTransform& registered);
+           const RigidTransform& predicted, const RigidTransform& registered, int unconfirmed = 0);
   // The scan at odometry pose `pose` sits at `place` on the map, and the scans after it relative to it.
   void reanchor(const RigidTransform& pose, const RigidTransform& place) { map_from_odometry_ = place * pose.inverse(); }
   // A frame that stays out of the map.
@@ -75,6 +78,7 @@ class PointMapTracker {
   VoxelPointMap map_;
   MotionModelError model_error_;
   bool holds_last_scan_ = false;
+  int last_scan_unconfirmed_ = 0;
   RigidTransform map_from_odometry_;
 };
 
