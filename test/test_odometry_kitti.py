@@ -251,7 +251,8 @@ def test_a_map_placed_by_an_unconfirmed_first_motion_confirms_nothing():
     there, that scan made the next scan's alignment repeat the same motion: frame 2, 0.31 m short with its lines' own
     test leaving x unconfirmed too, was reported as good. Along the directions the last scan sits where its own
     unconfirmed lines put it, the map's alignment agreeing with the lines confirms nothing: frame 2 is flagged, naming
-    why, with the fallback variance along x. The rest of the drive registers as before (no frame more than the gross bound off is reported as good)."""
+    why, with the fallback variance along x. The rest of the drive registers as before (no frame more than the gross
+    bound off is reported as good)."""
     accuracy = bench_accuracy()
     data = accuracy.open_run(accuracy.STOP_AND_GO, None).from_scan(5).every_kth_scan(2)
     odom = line_odom_core.Odometry(accuracy.kitti_config(8, 0, {}))
